@@ -1,0 +1,150 @@
+"""Stage base classes: what each kind of component takes, returns, and declares.
+
+A component is a small class with `default_conf` (user config merges over it; unknown keys are refused) and the
+names of the values it `consumes` and `provides`, so an incompatible combination is refused before a run starts.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import torch
+
+from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
+
+# The values that can flow between stages; a frame always provides "image" and "points".
+IMAGE, POINTS, GROUND_TRUTH = "image", "points", "ground_truth"
+KEYPOINTS2D, KEYPOINTS3D = "keypoints2d", "keypoints3d"
+FEATURES2D, FEATURES3D = "features2d", "features3d"
+MATCHES = "matches"
+
+
+class ConfigError(ValueError):
+    """A component was given a configuration it does not understand."""
+
+
+def merge_conf(defaults: Mapping[str, Any], overrides: Mapping[str, Any] | None, owner: str) -> dict[str, Any]:
+    conf = copy.deepcopy(dict(defaults))
+    for key, value in (overrides or {}).items():
+        if key not in conf:
+            raise ConfigError(f"{owner}: unknown config key {key!r}; known keys: {sorted(conf)}")
+        conf[key] = value
+    return conf
+
+
+class Component:
+    """Base of every stage implementation."""
+
+    kind: ClassVar[str] = ""
+    name: ClassVar[str] = ""  # set by the registry to the registered name
+    default_conf: ClassVar[dict[str, Any]] = {}
+    consumes: ClassVar[frozenset[str]] = frozenset()
+    provides: ClassVar[frozenset[str]] = frozenset()
+    learned: ClassVar[bool] = False  # True for components whose parameters come from a checkpoint
+
+    def __init__(self, conf: Mapping[str, Any] | None = None) -> None:
+        self.conf = merge_conf(self.default_conf, conf, f"{self.kind} {self.name!r}")
+
+    @property
+    def label(self) -> str:
+        return f"{self.kind} {self.name!r}"
+
+    def __repr__(self) -> str:
+        return f"<{self.label} {self.conf}>"
+
+
+class Extractor2D(Component):
+    """Selects image keypoints (edge pixels)."""
+
+    kind = "extractor2d"
+    consumes = frozenset({IMAGE})
+    provides = frozenset({KEYPOINTS2D})
+
+    def __call__(self, frame: Frame) -> Keypoints2D:
+        raise NotImplementedError
+
+
+class Extractor3D(Component):
+    """Selects LiDAR keypoints (edge points)."""
+
+    kind = "extractor3d"
+    consumes = frozenset({POINTS})
+    provides = frozenset({KEYPOINTS3D})
+
+    def __call__(self, frame: Frame) -> Keypoints3D:
+        raise NotImplementedError
+
+
+class Encoder2D(Component):
+    """Describes image keypoints: returns [M2 x D] descriptors."""
+
+    kind = "encoder2d"
+    consumes = frozenset({IMAGE, KEYPOINTS2D})
+    provides = frozenset({FEATURES2D})
+
+    def __call__(self, frame: Frame, kp2d: Keypoints2D) -> torch.Tensor | None:
+        raise NotImplementedError
+
+
+class Encoder3D(Component):
+    """Describes LiDAR keypoints: returns [M3 x D] descriptors."""
+
+    kind = "encoder3d"
+    consumes = frozenset({POINTS, KEYPOINTS3D})
+    provides = frozenset({FEATURES3D})
+
+    def __call__(self, frame: Frame, kp3d: Keypoints3D) -> torch.Tensor | None:
+        raise NotImplementedError
+
+
+class Exchanger(Component):
+    """Updates both descriptor sets jointly (e.g. self/cross attention); shapes are kept."""
+
+    kind = "exchanger"
+    consumes = frozenset({KEYPOINTS2D, KEYPOINTS3D, FEATURES2D, FEATURES3D})
+    provides = frozenset({FEATURES2D, FEATURES3D})
+
+    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Features:
+        raise NotImplementedError
+
+
+class Matcher(Component):
+    """Pairs image keypoints with LiDAR keypoints."""
+
+    kind = "matcher"
+    consumes = frozenset({KEYPOINTS2D, KEYPOINTS3D, FEATURES2D, FEATURES3D})
+    provides = frozenset({MATCHES})
+
+    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Matches:
+        raise NotImplementedError
+
+
+class PoseSolver(Component):
+    """Estimates the camera <- LiDAR transform from matches."""
+
+    kind = "solver"
+    consumes = frozenset({KEYPOINTS2D, KEYPOINTS3D, MATCHES})
+    provides = frozenset()
+
+    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, matches: Matches) -> PoseEstimate:
+        raise NotImplementedError
+
+
+class LearnedComponent(Component, torch.nn.Module):
+    """A component with parameters; its weights live in a checkpoint shared by the pipeline's learned stages."""
+
+    learned = True
+
+    def __init__(self, conf: Mapping[str, Any] | None = None) -> None:
+        torch.nn.Module.__init__(self)
+        Component.__init__(self, conf)
+
+    __repr__ = Component.__repr__
+
+
+STAGE_BASES: dict[str, type[Component]] = {
+    cls.kind: cls for cls in (Extractor2D, Extractor3D, Encoder2D, Encoder3D, Exchanger, Matcher, PoseSolver)
+}
+STAGE_ORDER: tuple[str, ...] = tuple(STAGE_BASES)

@@ -1,0 +1,5 @@
+"""Datasets: each yields `SensorFrame`s by id; the protocol turns them into registration problems."""
+
+from .base import Dataset
+
+__all__ = ["Dataset"]

@@ -1,0 +1,1 @@
+"""Entry point registering the built-in datasets."""

@@ -1,0 +1,94 @@
+"""The hooks a plugin implements. Each receives a `register` callback, so one plugin can offer many components.
+
+A plugin is any module or object with functions decorated by `i2pbench.hookimpl`, exposed through the entry-point
+group `i2pbench`. Built-in stages are registered this way too.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import pluggy
+
+hookspec = pluggy.HookspecMarker("i2pbench")
+Register = Callable[..., None]
+
+
+@hookspec
+def register_datasets(register: Register) -> None:
+    """Register `i2pbench.data.Dataset` subclasses: `register(DatasetClass)`, keyed by the class's `name`."""
+
+
+@hookspec
+def register_extractors_2d(register: Register) -> None:
+    """Register `Extractor2D` subclasses (image keypoint / edge pixel selectors): `register(cls)`."""
+
+
+@hookspec
+def register_extractors_3d(register: Register) -> None:
+    """Register `Extractor3D` subclasses (LiDAR keypoint / edge point selectors): `register(cls)`."""
+
+
+@hookspec
+def register_encoders_2d(register: Register) -> None:
+    """Register `Encoder2D` subclasses, which describe image keypoints with [M x D] descriptors: `register(cls)`."""
+
+
+@hookspec
+def register_encoders_3d(register: Register) -> None:
+    """Register `Encoder3D` subclasses, which describe LiDAR keypoints with [M x D] descriptors: `register(cls)`."""
+
+
+@hookspec
+def register_exchangers(register: Register) -> None:
+    """Register `Exchanger` subclasses, which update 2D and 3D descriptors jointly: `register(cls)`."""
+
+
+@hookspec
+def register_matchers(register: Register) -> None:
+    """Register `Matcher` subclasses, which pair 2D and 3D keypoints: `register(cls)`."""
+
+
+@hookspec
+def register_pose_solvers(register: Register) -> None:
+    """Register `PoseSolver` subclasses, which turn matches into a camera <- LiDAR pose: `register(cls)`."""
+
+
+@hookspec
+def register_presets(register: Register) -> None:
+    """Register named lists of stage combinations: `register(name, combinations, description)`.
+
+    `combinations` is a list of dicts mapping stage kinds (e.g. "extractor2d") to component names; kinds left out take
+    the default pipeline's choice. The preset named "default" is what `i2pbench run` uses with no stage options.
+    """
+
+
+@hookspec
+def register_weights(register: Register) -> None:
+    """Register shipped checkpoint files: `register(path)`. A pipeline whose learned stages fit a checkpoint's
+    recorded combination uses it when the user asks for `--weights auto` (the default)."""
+
+
+HOOK_NAMES: tuple[str, ...] = (
+    "register_datasets",
+    "register_extractors_2d",
+    "register_extractors_3d",
+    "register_encoders_2d",
+    "register_encoders_3d",
+    "register_exchangers",
+    "register_matchers",
+    "register_pose_solvers",
+    "register_presets",
+    "register_weights",
+)
+
+# The hook that registers each stage kind.
+STAGE_HOOKS: dict[str, str] = {
+    "extractor2d": "register_extractors_2d",
+    "extractor3d": "register_extractors_3d",
+    "encoder2d": "register_encoders_2d",
+    "encoder3d": "register_encoders_3d",
+    "exchanger": "register_exchangers",
+    "matcher": "register_matchers",
+    "solver": "register_pose_solvers",
+}

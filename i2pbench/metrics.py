@@ -1,0 +1,59 @@
+"""Registration metrics exactly as the peers compute them, plus the geodesic angle for cross-paper comparison.
+
+P_diff = inv(T_pred) @ T_gt; RTE = ||P_diff[:3, 3]||; RRE = sum |extrinsic 'xzy' Euler angles of P_diff| in degrees
+(scipy's convention, lowercase = extrinsic). A failed solve has infinite errors.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy.spatial.transform import Rotation
+
+from .geometry import invert
+from .protocol import Protocol
+
+
+@dataclass(frozen=True)
+class PoseErrors:
+    rte_m: float
+    rre_deg: float
+    geodesic_deg: float
+
+
+FAILED = PoseErrors(math.inf, math.inf, math.inf)
+
+
+def pose_errors(T_pred: np.ndarray | None, T_gt: np.ndarray) -> PoseErrors:
+    if T_pred is None or not np.all(np.isfinite(T_pred)):
+        return FAILED
+    P_diff = invert(np.asarray(T_pred, dtype=np.float64)) @ np.asarray(T_gt, dtype=np.float64)
+    R = P_diff[:3, :3]
+    rre = float(np.abs(Rotation.from_matrix(R).as_euler("xzy", degrees=True)).sum())
+    cos = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    return PoseErrors(float(np.linalg.norm(P_diff[:3, 3])), rre, float(np.degrees(np.arccos(cos))))
+
+
+def success(rte: pd.Series, rre: pd.Series, protocol: Protocol) -> pd.Series:
+    return (rre < protocol.acc_rre_deg) & (rte < protocol.acc_rte_m)
+
+
+def summarize(rte: pd.Series, rre: pd.Series, protocol: Protocol) -> dict[str, float]:
+    """Acc. over ALL frames (failures count); mean and std over the frames the protocol's filter keeps.
+
+    Std is the population std (numpy's default), as the peers' evaluation scripts compute it.
+    """
+    rte, rre = pd.Series(rte, dtype=float), pd.Series(rre, dtype=float)
+    kept = (rre < protocol.filter_rre_deg) & (rte < protocol.filter_rte_m)
+    nan = float("nan")
+    return {
+        "acc_pct": 100.0 * float(success(rte, rre, protocol).mean()) if len(rte) else nan,
+        "rte_mean": float(rte[kept].mean()) if kept.any() else nan,
+        "rte_std": float(rte[kept].std(ddof=0)) if kept.any() else nan,
+        "rre_mean": float(rre[kept].mean()) if kept.any() else nan,
+        "rre_std": float(rre[kept].std(ddof=0)) if kept.any() else nan,
+        "kept": int(kept.sum()),
+    }

@@ -1,0 +1,130 @@
+"""The small typed values that cross stage boundaries.
+
+Shapes are documented per field; arrays are numpy unless a field says tensor. Stages never receive a grab-bag dict.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+
+@dataclass(frozen=True)
+class SensorFrame:
+    """One synchronised camera image and LiDAR sweep, as a dataset stores it (LiDAR frame, no protocol applied)."""
+
+    dataset: str
+    frame_id: str
+    image: np.ndarray  # [H x W x 3] uint8 RGB
+    points: np.ndarray  # [N x 4] float32 x, y, z (m, LiDAR frame), reflectance in [0, 1]
+    ring: np.ndarray  # [N] int16 laser index; within a ring, points are in scan (azimuth) order
+    K: np.ndarray  # [3 x 3] float64 camera intrinsics
+    T_cam_lidar: np.ndarray  # [4 x 4] float64, maps LiDAR points into the camera frame
+    match_radius_px: float = 3.0  # eps_c: a projected 3D point within this many pixels of a 2D point is a true match
+    source: str = ""  # file or record the frame was read from, for error messages
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return int(self.image.shape[1]), int(self.image.shape[0])
+
+
+@dataclass(frozen=True)
+class Frame:
+    """A registration problem: the image and a LiDAR sweep moved by the protocol's random transform.
+
+    `ranges` is the distance each return travelled from the sensor, a measurement the protocol's transform leaves
+    unchanged (real LiDARs report it), so scan-line edge detectors still see the sensor's geometry.
+    `T_gt` is hidden (None) from every stage that does not declare it consumes ground truth.
+    """
+
+    dataset: str
+    frame_id: str
+    image: np.ndarray  # [H x W x 3] uint8 RGB
+    points: np.ndarray  # [N x 4] float32 x, y, z (moved LiDAR frame), reflectance in [0, 1]
+    ring: np.ndarray  # [N] int16
+    ranges: np.ndarray  # [N] float32 metres from the sensor
+    K: np.ndarray  # [3 x 3] float64
+    T_gt: np.ndarray | None  # [4 x 4] float64, camera <- moved LiDAR
+    match_radius_px: float = 3.0
+    T_init: np.ndarray | None = None  # [4 x 4] the pose a solver would assume with no information (for overlays)
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return int(self.image.shape[1]), int(self.image.shape[0])
+
+    def without_ground_truth(self) -> Frame:
+        return dataclasses.replace(self, T_gt=None)
+
+
+@dataclass(frozen=True)
+class Keypoints2D:
+    """Image keypoints (edge pixels)."""
+
+    uv: np.ndarray  # [M x 2] float32 pixel coordinates (u = column, v = row)
+
+    def __len__(self) -> int:
+        return int(self.uv.shape[0])
+
+
+@dataclass(frozen=True)
+class Keypoints3D:
+    """LiDAR keypoints (edge points), as indices into `Frame.points` plus their values."""
+
+    index: np.ndarray  # [M] int64 rows of Frame.points
+    xyz: np.ndarray  # [M x 3] float32 in the moved LiDAR frame
+    reflectance: np.ndarray  # [M] float32
+
+    def __len__(self) -> int:
+        return int(self.index.shape[0])
+
+    @classmethod
+    def from_index(cls, frame: Frame, index: np.ndarray) -> Keypoints3D:
+        index = np.asarray(index, dtype=np.int64)
+        pts = frame.points[index]
+        return cls(index=index, xyz=np.ascontiguousarray(pts[:, :3]), reflectance=np.ascontiguousarray(pts[:, 3]))
+
+
+@dataclass(frozen=True)
+class Features:
+    """Descriptors for both keypoint sets; `None` on a side means no encoder ran there."""
+
+    desc2d: torch.Tensor | None  # [M2 x D] float32
+    desc3d: torch.Tensor | None  # [M3 x D] float32
+
+
+@dataclass(frozen=True)
+class Matches:
+    """2D-3D correspondences."""
+
+    index2d: np.ndarray  # [K] int64 rows of Keypoints2D.uv
+    index3d: np.ndarray  # [K] int64 rows of Keypoints3D
+    score: np.ndarray  # [K] float32, higher is more confident
+
+    def __len__(self) -> int:
+        return int(self.index2d.shape[0])
+
+    @classmethod
+    def empty(cls) -> Matches:
+        return cls(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32))
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    """A solver's answer. A failed solve carries `T=None` and a message, never an exception."""
+
+    T: np.ndarray | None  # [4 x 4] float64 camera <- moved LiDAR
+    inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # [I] int64 rows of Matches
+    message: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.T is not None
+
+    @classmethod
+    def failed(cls, message: str) -> PoseEstimate:
+        return cls(T=None, message=message)

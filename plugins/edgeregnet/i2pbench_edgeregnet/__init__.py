@@ -1,0 +1,1 @@
+"""i2pbench reference plugins: edgeregnet."""
