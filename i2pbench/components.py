@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import torch
 
@@ -46,6 +46,14 @@ class Component:
 
     def __init__(self, conf: Mapping[str, Any] | None = None) -> None:
         self.conf = merge_conf(self.default_conf, conf, f"{self.kind} {self.name!r}")
+
+    def check_compatible(self, upstream: Mapping[str, Component]) -> str | None:
+        """Return why this component cannot follow `upstream` (kind -> component), or None if it can.
+
+        The default accepts anything whose declared inputs are provided; override for finer checks, e.g. a
+        descriptor dimension that must agree with the encoders'.
+        """
+        return None
 
     @property
     def label(self) -> str:
@@ -119,6 +127,18 @@ class Matcher(Component):
 
     def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Matches:
         raise NotImplementedError
+
+
+@runtime_checkable
+class TrainableMatcher(Protocol):
+    """A matcher that can supervise training: `i2pbench train` minimises its `loss` through every learned stage.
+
+    `frame` carries T_gt. Returns the scalar loss tensor and its named terms (floats) for progress reporting.
+    """
+
+    def loss(
+        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features
+    ) -> tuple[torch.Tensor, dict[str, float]]: ...
 
 
 class PoseSolver(Component):
