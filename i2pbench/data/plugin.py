@@ -1,1 +1,9 @@
-"""Entry point registering the built-in datasets."""
+"""Entry point registering the built-in datasets (the nuScenes devkit is imported only when that dataset is used)."""
+
+from ..plugins import hookimpl
+from .kitti import KittiOdometry
+
+
+@hookimpl
+def register_datasets(register) -> None:
+    register(KittiOdometry)

@@ -1,0 +1,187 @@
+"""KITTI Odometry: `sequences/NN/{velodyne/NNNNNN.bin, image_2/NNNNNN.png, image_3/, calib.txt}`.
+
+`read_frame` reads one frame from any directory in this layout, so the synthetic dataset (which writes the same
+layout) shares the reader, its checks and its error messages.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, ClassVar
+
+import cv2
+import numpy as np
+
+from ..errors import DataError
+from ..types import SensorFrame
+from .base import Dataset
+from .scanlines import recover_rings
+
+SPLIT_SEQUENCES: dict[str, tuple[str, ...]] = {
+    "train": tuple(f"{i:02d}" for i in range(9)),  # 00-08, as CorrI2P, DeepI2P, VP2P-Match and EdgeRegNet train
+    "test": ("09", "10"),
+}
+
+
+def _parse_calib(path: Path) -> dict[str, np.ndarray]:
+    out: dict[str, np.ndarray] = {}
+    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+        key, sep, values = line.partition(":")
+        if not sep:
+            continue
+        try:
+            out[key.strip()] = np.array([float(v) for v in values.split()], dtype=np.float64)
+        except ValueError as exc:
+            raise DataError(f"{path}:{lineno}: {key.strip()} holds a non-number ({exc})") from exc
+    return out
+
+
+@lru_cache(maxsize=64)
+def _calib_cached(path: str, mtime_ns: int, camera: int) -> tuple[np.ndarray, np.ndarray]:
+    calib = _parse_calib(Path(path))
+    mats = {}
+    for key in (f"P{camera}", "Tr"):
+        if key not in calib:
+            raise DataError(f"{path}: no {key} line (needed for camera {camera})")
+        if calib[key].size != 12:
+            raise DataError(f"{path}: {key} has {calib[key].size} values, expected 12 (a 3x4 matrix)")
+        mats[key] = calib[key].reshape(3, 4)
+    P = mats[f"P{camera}"]
+    K = P[:, :3].copy()
+    T = np.eye(4)
+    T[:3, :] = mats["Tr"]
+    # Pc = K [I | b]: the baseline b of camera c relative to rectified camera 0 goes into the extrinsic.
+    T[:3, 3] += np.linalg.solve(K, P[:, 3])
+    return K, T
+
+
+def camera_calib(calib_path: Path, camera: int) -> tuple[np.ndarray, np.ndarray]:
+    """(K [3 x 3], T_cam_lidar [4 x 4]) for camera `camera`, so that K @ T_cam_lidar @ X == Pc @ [Tr; 0 0 0 1] @ X."""
+    if not calib_path.is_file():
+        raise DataError(f"{calib_path}: calibration file not found")
+    K, T = _calib_cached(str(calib_path), calib_path.stat().st_mtime_ns, camera)
+    return K.copy(), T.copy()
+
+
+def read_points(path: Path) -> np.ndarray:
+    """[N x 4] float32 x, y, z, reflectance in [0, 1] from a KITTI .bin."""
+    if not path.is_file():
+        raise DataError(f"{path}: LiDAR scan not found")
+    size = path.stat().st_size
+    if size % 16 or size == 0:
+        raise DataError(f"{path}: {size} bytes is not a positive multiple of 16 (float32 x, y, z, reflectance)")
+    points = np.fromfile(path, dtype=np.float32).reshape(-1, 4)
+    bad = ~np.isfinite(points).all(axis=1)
+    if bad.any():
+        raise DataError(f"{path}: {int(bad.sum())} of {len(points)} points hold NaN or inf (first at row {bad.argmax()})")
+    points[:, 3] = np.clip(points[:, 3], 0.0, 1.0)
+    return points
+
+
+def read_image(path: Path) -> np.ndarray:
+    """[H x W x 3] uint8 RGB."""
+    if not path.is_file():
+        raise DataError(f"{path}: image not found")
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None or bgr.size == 0:
+        raise DataError(f"{path}: unreadable or corrupt image")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def read_frame(
+    sequence_dir: Path, stem: str, camera: int = 2, dataset: str = "kitti", match_radius_px: float = 3.0
+) -> SensorFrame:
+    """Read frame `stem` of a sequence directory in the KITTI Odometry layout; frame id is "<sequence>/<stem>"."""
+    sequence_dir = Path(sequence_dir)
+    scan = sequence_dir / "velodyne" / f"{stem}.bin"
+    points = read_points(scan)
+    K, T = camera_calib(sequence_dir / "calib.txt", camera)
+    return SensorFrame(
+        dataset=dataset,
+        frame_id=f"{sequence_dir.name}/{stem}",
+        image=read_image(sequence_dir / f"image_{camera}" / f"{stem}.png"),
+        points=points,
+        ring=recover_rings(points),
+        K=K,
+        T_cam_lidar=T,
+        match_radius_px=match_radius_px,
+        source=str(scan),
+    )
+
+
+def _missing(stems: set[str], folder: Path, suffix: str) -> str:
+    names = sorted(stems)
+    more = f" and {len(names) - 5} more" if len(names) > 5 else ""
+    return ", ".join(str(folder / f"{s}{suffix}") for s in names[:5]) + more
+
+
+def sequence_stems(sequence_dir: Path, camera: int = 2) -> list[str]:
+    """Sorted frame stems of a sequence, after checking every scan has its image and every image its scan."""
+    velodyne, images = sequence_dir / "velodyne", sequence_dir / f"image_{camera}"
+    scans = {p.stem for p in velodyne.glob("*.bin")}
+    if not scans:
+        raise DataError(f"{velodyne}: empty sequence (no .bin scans)")
+    pngs = {p.stem for p in images.glob("*.png")}
+    if scans - pngs:
+        raise DataError(f"{sequence_dir}: scans without an image: missing {_missing(scans - pngs, images, '.png')}")
+    if pngs - scans:
+        raise DataError(f"{sequence_dir}: images without a scan: missing {_missing(pngs - scans, velodyne, '.bin')}")
+    return sorted(scans)
+
+
+class KittiOdometry(Dataset):
+    """KITTI Odometry with the peers' split: train = sequences 00-08, test = 09-10; "all" = every sequence on disk."""
+
+    name = "kitti"
+    splits = ("train", "test", "all")
+    default_conf: ClassVar[dict[str, Any]] = {
+        "root": None,  # folder holding sequences/; None reads I2PBENCH_KITTI_ROOT
+        "camera": 2,  # 2 (left colour) or 3 (right colour)
+        "sequences": None,  # explicit list of sequences, overriding the split; each must exist
+    }
+    match_radius_px = 3.0
+
+    def __init__(self, split: str, conf: dict[str, Any] | None = None) -> None:
+        super().__init__(split, conf)
+        if self.conf["camera"] not in (2, 3):
+            raise DataError(f"dataset 'kitti': camera must be 2 or 3, got {self.conf['camera']!r}")
+        self._ids: list[str] | None = None
+
+    @property
+    def sequences_dir(self) -> Path:
+        path = self.root / "sequences"
+        if not path.is_dir():
+            raise DataError(f"{path} not found (KITTI Odometry root must hold sequences/NN/...)")
+        return path
+
+    def sequences(self) -> list[str]:
+        """Sequences of this split that exist on disk (an explicit `sequences` conf must all exist)."""
+        base = self.sequences_dir
+        if self.conf["sequences"] is not None:
+            names = [f"{int(s):02d}" if str(s).isdigit() else str(s) for s in self.conf["sequences"]]
+            absent = [str(base / n) for n in names if not (base / n).is_dir()]
+            if absent:
+                raise DataError(f"dataset 'kitti': requested sequences not found: {', '.join(absent)}")
+            return sorted(set(names))
+        if self.split == "all":
+            return sorted(p.name for p in base.iterdir() if p.is_dir())
+        return [s for s in SPLIT_SEQUENCES[self.split] if (base / s).is_dir()]
+
+    def frame_ids(self) -> list[str]:
+        if self._ids is None:
+            camera = self.conf["camera"]
+            ids = [f"{s}/{stem}" for s in self.sequences() for stem in sequence_stems(self.sequences_dir / s, camera)]
+            if not ids:
+                raise DataError(f"dataset 'kitti': no frames for split {self.split!r} under {self.sequences_dir}")
+            self._ids = ids
+        return list(self._ids)
+
+    def load(self, frame_id: str) -> SensorFrame:
+        sequence, sep, stem = frame_id.partition("/")
+        if not sep or not sequence or not stem:
+            raise DataError(f"dataset 'kitti': frame id {frame_id!r} is not of the form 'NN/NNNNNN'")
+        return read_frame(self.sequences_dir / sequence, stem, self.conf["camera"], self.name, self.match_radius_px)
+
+    def identity(self) -> dict[str, Any]:
+        return {**super().identity(), "camera": self.conf["camera"], "sequences": self.conf["sequences"]}

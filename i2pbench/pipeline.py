@@ -1,0 +1,211 @@
+"""A chosen combination of components, checked before any frame runs, and run one frame at a time.
+
+Each stage is timed on its own; an exception or a contract violation in a stage becomes a failed outcome that names
+the component, so one bad frame or plugin never sinks a run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+import traceback
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+from . import contracts
+from .components import (
+    FEATURES2D,
+    FEATURES3D,
+    GROUND_TRUTH,
+    IMAGE,
+    KEYPOINTS2D,
+    KEYPOINTS3D,
+    POINTS,
+    STAGE_ORDER,
+    Component,
+    LearnedComponent,
+)
+from .errors import PluginError, StageError
+from .plugins import Registry
+from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
+
+NONE = "none"  # a stage set to "none" is skipped
+REQUIRED_STAGES = ("extractor2d", "extractor3d", "matcher", "solver")
+
+
+@dataclass(frozen=True)
+class Combination:
+    """Which component runs at each stage (or "none"), with config overrides."""
+
+    names: Mapping[str, str]
+    confs: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        unknown = set(self.names) - set(STAGE_ORDER)
+        if unknown:
+            raise PluginError(f"unknown stage kind(s) {sorted(unknown)}; kinds are {list(STAGE_ORDER)}")
+
+    def name(self, kind: str) -> str:
+        return self.names.get(kind, NONE)
+
+    @property
+    def label(self) -> str:
+        return " > ".join(self.name(k) for k in STAGE_ORDER if self.name(k) != NONE)
+
+    def describe(self) -> dict[str, Any]:
+        return {k: {"name": self.name(k), "conf": dict(self.confs.get(k, {}))} for k in STAGE_ORDER}
+
+    def key(self) -> str:
+        return hashlib.sha256(json.dumps(self.describe(), sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+@dataclass
+class FrameOutcome:
+    """What running a pipeline on one frame produced."""
+
+    estimate: PoseEstimate
+    timings: dict[str, float]  # seconds per stage kind that ran
+    n_kp2d: int = 0
+    n_kp3d: int = 0
+    n_matches: int = 0
+    error: str = ""
+    failed_component: str = ""
+
+    @property
+    def n_inliers(self) -> int:
+        return int(len(self.estimate.inliers))
+
+
+class Pipeline:
+    """Instantiated components for every stage kind, in data-flow order."""
+
+    def __init__(self, combination: Combination, stages: Mapping[str, Component]) -> None:
+        self.combination = combination
+        self.stages = {k: stages[k] for k in STAGE_ORDER if k in stages}
+        self.weights_identity = "none" if not self.learned_modules() else "untrained"
+        self.weights_meta: dict[str, Any] = {}
+        _check_compatibility(self.stages)
+
+    @classmethod
+    def build(cls, registry: Registry, combination: Combination) -> Pipeline:
+        missing = [k for k in REQUIRED_STAGES if combination.name(k) == NONE]
+        if missing:
+            raise PluginError(f"combination {combination.label!r} has no {', '.join(missing)}")
+        stages = {}
+        for kind in STAGE_ORDER:
+            if combination.name(kind) != NONE:
+                component_cls = registry.component(kind, combination.name(kind))
+                stages[kind] = component_cls(combination.confs.get(kind))
+        return cls(combination, stages)
+
+    def learned_modules(self) -> dict[str, LearnedComponent]:
+        return {k: c for k, c in self.stages.items() if isinstance(c, LearnedComponent)}
+
+    def model_size_mb(self) -> float:
+        """Size of all learned parameters stored as float32."""
+        n = sum(p.numel() for m in self.learned_modules().values() for p in m.parameters())
+        return n * 4 / 2**20
+
+    def to(self, device: str | torch.device) -> Pipeline:
+        for module in self.learned_modules().values():
+            module.to(device)
+        return self
+
+    def eval(self) -> Pipeline:
+        for module in self.learned_modules().values():
+            module.eval()
+        return self
+
+    def run(self, frame: Frame) -> FrameOutcome:
+        """Run every stage on one frame; never raises for a stage's failure."""
+        timings: dict[str, float] = {}
+        counts = {"n_kp2d": 0, "n_kp3d": 0, "n_matches": 0}
+        kind = ""
+        try:
+            with torch.inference_mode():
+                for kind, result in self._stages(frame, timings):
+                    _count(kind, result, counts)
+            estimate = result
+            return FrameOutcome(estimate, timings, **counts, error="" if estimate.ok else estimate.message)
+        except Exception as exc:  # the failure is the result: record it, name the component, go on
+            component = self.stages[kind].label if kind in self.stages else "pipeline"
+            message = str(exc) if isinstance(exc, StageError) else f"{component}: {_describe(exc)}"
+            return FrameOutcome(PoseEstimate.failed(message), timings, **counts, error=message,
+                                failed_component=component)
+
+    def _stages(self, frame: Frame, timings: dict[str, float]):
+        """Yield (kind, output) for each stage in order, timing each one and checking its output."""
+        hidden = frame.without_ground_truth()
+        s = self.stages
+
+        def call(kind: str, *args: Any) -> Any:
+            component = s[kind]
+            view = frame if GROUND_TRUTH in component.consumes else hidden
+            start = time.perf_counter()
+            out = component(view, *args)
+            _synchronize()
+            timings[kind] = time.perf_counter() - start
+            return out
+
+        kp2d = contracts.check_keypoints2d(call("extractor2d"), frame, s["extractor2d"].label)
+        yield "extractor2d", kp2d
+        kp3d = contracts.check_keypoints3d(call("extractor3d"), frame, s["extractor3d"].label)
+        yield "extractor3d", kp3d
+        features = self._features(call, kp2d, kp3d)
+        matches = contracts.check_matches(call("matcher", kp2d, kp3d, features), len(kp2d), len(kp3d),
+                                          s["matcher"].label)
+        yield "matcher", matches
+        yield "solver", contracts.check_estimate(call("solver", kp2d, kp3d, matches), s["solver"].label)
+
+    def _features(self, call: Any, kp2d: Keypoints2D, kp3d: Keypoints3D) -> Features:
+        s = self.stages
+        d2 = call("encoder2d", kp2d) if "encoder2d" in s else None
+        d3 = call("encoder3d", kp3d) if "encoder3d" in s else None
+        d2 = contracts.check_descriptors(d2, len(kp2d), s["encoder2d"].label) if "encoder2d" in s else None
+        d3 = contracts.check_descriptors(d3, len(kp3d), s["encoder3d"].label) if "encoder3d" in s else None
+        features = Features(d2, d3)
+        if "exchanger" in s:
+            features = contracts.check_features(call("exchanger", kp2d, kp3d, features), len(kp2d), len(kp3d),
+                                                s["exchanger"].label)
+        return features
+
+
+def _count(kind: str, result: Any, counts: dict[str, int]) -> None:
+    key = {"extractor2d": "n_kp2d", "extractor3d": "n_kp3d", "matcher": "n_matches"}.get(kind)
+    if key:
+        counts[key] = len(result)
+
+
+def _describe(exc: BaseException) -> str:
+    where = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
+    loc = f" (at {where.filename.rsplit('/', 1)[-1]}:{where.lineno})" if where else ""
+    return f"{type(exc).__name__}: {exc}{loc}"
+
+
+def _synchronize() -> None:
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        torch.cuda.synchronize()
+
+
+# Which stage kind normally provides each value, for error messages.
+_PROVIDER = {KEYPOINTS2D: "extractor2d", KEYPOINTS3D: "extractor3d", FEATURES2D: "encoder2d", FEATURES3D: "encoder3d"}
+
+
+def _check_compatibility(stages: Mapping[str, Component]) -> None:
+    """Refuse a combination whose stages' declared inputs are not provided upstream, naming both components."""
+    available = {IMAGE, POINTS, GROUND_TRUTH}
+    upstream: dict[str, Component] = {}
+    for kind, component in stages.items():
+        for need in sorted(component.consumes - available):
+            provider = _PROVIDER.get(need, "an earlier stage")
+            chosen = f"{provider} {stages[provider].name!r}" if provider in stages else f"{provider} 'none'"
+            raise PluginError(f"{component.label} needs {need}, but {chosen} does not provide it")
+        reason = component.check_compatible(upstream)
+        if reason:
+            raise PluginError(f"{component.label} cannot follow this combination: {reason}")
+        upstream[kind] = component
+        available |= component.provides

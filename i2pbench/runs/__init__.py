@@ -1,0 +1,1 @@
+"""Running combinations over datasets: grid expansion, execution, and the per-frame results store."""

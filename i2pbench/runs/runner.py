@@ -1,0 +1,131 @@
+"""Run combinations over a dataset split, one frame at a time, into the results store.
+
+Data flows one way: dataset -> SensorFrame -> protocol -> Frame -> pipeline -> PoseEstimate -> metrics -> record.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ..components import STAGE_ORDER
+from ..data.base import Dataset
+from ..errors import I2PBenchError
+from ..metrics import pose_errors
+from ..pipeline import Combination, FrameOutcome, Pipeline
+from ..plugins import Registry
+from ..protocol import Protocol
+from ..types import PoseEstimate
+from ..weights import apply_checkpoint, select_checkpoint
+from .store import ResultsStore, cache_key
+
+Progress = Callable[[int], None]
+
+
+@dataclass
+class Job:
+    """One combination ready to run: its pipeline (weights loaded) and identity."""
+
+    combination: Combination
+    pipeline: Pipeline
+
+    @property
+    def weights(self) -> str:
+        return self.pipeline.weights_identity
+
+
+def prepare(registry: Registry, combinations: Sequence[Combination], weights: str = "auto") -> list[Job]:
+    """Build every pipeline before any frame runs, so an incompatible combination is refused up front."""
+    shipped = [path for path, _ in registry.weights]
+    jobs = []
+    for combination in combinations:
+        pipeline = Pipeline.build(registry, combination)
+        checkpoint = select_checkpoint(pipeline, weights, shipped)
+        if checkpoint is not None:
+            apply_checkpoint(pipeline, checkpoint)
+        jobs.append(Job(combination, pipeline.eval()))
+    return jobs
+
+
+def frame_key(dataset: Dataset, frame_id: str, job: Job, protocol: Protocol) -> str:
+    return cache_key({
+        "data": dataset.identity(), "frame": frame_id, "stages": job.combination.describe(),
+        "weights": job.weights, "protocol": protocol.card(),
+    })
+
+
+def run_job(job: Job, dataset: Dataset, frame_ids: Sequence[str], protocol: Protocol, store: ResultsStore,
+            *, overwrite: bool = False, warmup: int = 1, progress: Progress | None = None) -> list[str]:
+    """Run one combination over frames, skipping those already stored; returns the frames' cache keys."""
+    keys = [frame_key(dataset, f, job, protocol) for f in frame_ids]
+    todo = [(k, f) for k, f in zip(keys, frame_ids, strict=True) if overwrite or not store.has(k)]
+    if progress:
+        progress(len(frame_ids) - len(todo))
+    if todo and warmup:
+        _warm_up(job, dataset, protocol, todo[0][1], warmup)
+    for key, frame_id in todo:
+        store.put(key, run_frame(job, dataset, frame_id, protocol))
+        if progress:
+            progress(1)
+    return keys
+
+
+def _warm_up(job: Job, dataset: Dataset, protocol: Protocol, frame_id: str, times: int) -> None:
+    """Untimed runs so one-off costs (lazy imports, allocator growth, JIT) stay out of latency figures."""
+    try:
+        frame = protocol.apply(dataset.load(frame_id))
+    except I2PBenchError:
+        return
+    for _ in range(times):
+        job.pipeline.run(frame)
+
+
+def run_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> dict[str, Any]:
+    """Load, run and score one frame; a dataset error becomes a failed record naming the file."""
+    start = time.perf_counter()
+    try:
+        frame = protocol.apply(dataset.load(frame_id))
+    except I2PBenchError as exc:
+        outcome = FrameOutcome(PoseEstimate.failed(str(exc)), {}, error=str(exc), failed_component=f"dataset {dataset.name!r}")
+        return _record(job, dataset, frame_id, protocol, outcome, None, time.perf_counter() - start)
+    outcome = job.pipeline.run(frame)
+    return _record(job, dataset, frame_id, protocol, outcome, frame.T_gt, time.perf_counter() - start)
+
+
+def _record(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol, outcome: FrameOutcome,
+            T_gt: np.ndarray | None, wall: float) -> dict[str, Any]:
+    T_pred = outcome.estimate.T
+    errors = pose_errors(T_pred, T_gt) if T_gt is not None else pose_errors(None, np.eye(4))
+    record: dict[str, Any] = {
+        "dataset": dataset.name, "split": dataset.split, "frame_id": frame_id,
+        "combination": job.combination.label, "combination_key": job.combination.key(),
+        **{kind: job.combination.name(kind) for kind in STAGE_ORDER},
+        "weights": job.weights, "weights_trained_on": job.pipeline.weights_meta.get("trained_on", ""),
+        "protocol": protocol.identity(), "status": "ok" if T_pred is not None else "failed",
+        "error": outcome.error, "failed_component": outcome.failed_component,
+        "rte_m": errors.rte_m, "rre_deg": errors.rre_deg, "geodesic_deg": errors.geodesic_deg,
+        "n_kp2d": outcome.n_kp2d, "n_kp3d": outcome.n_kp3d, "n_matches": outcome.n_matches,
+        "n_inliers": outcome.n_inliers, "model_size_mb": job.pipeline.model_size_mb(),
+        "t_total_s": sum(outcome.timings.values()), "wall_s": wall,
+        "T_pred": (T_pred.ravel().tolist() if T_pred is not None else None),
+        "T_gt": (T_gt.ravel().tolist() if T_gt is not None else None),
+    }
+    record.update({f"t_{kind}_s": outcome.timings.get(kind, np.nan) for kind in STAGE_ORDER})
+    return record
+
+
+def run_grid(registry: Registry, combinations: Sequence[Combination], dataset: Dataset, protocol: Protocol,
+             store: ResultsStore, *, weights: str = "auto", frame_ids: Sequence[str] | None = None,
+             overwrite: bool = False, progress: Progress | None = None) -> pd.DataFrame:
+    """Run every combination over the split; returns this grid's per-frame records (cached ones included)."""
+    jobs = prepare(registry, combinations, weights)
+    frame_ids = list(frame_ids if frame_ids is not None else dataset.frame_ids())
+    keys: list[str] = []
+    for job in jobs:
+        keys += run_job(job, dataset, frame_ids, protocol, store, overwrite=overwrite, progress=progress)
+    return store.load(keys)

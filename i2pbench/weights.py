@@ -1,0 +1,150 @@
+"""Checkpoints with identity: the learned stages' state dicts plus what they were trained with and on.
+
+A checkpoint belongs to the combination of learned stages (and extractors) it was trained with; loading it into a
+pipeline whose learned stages differ in name or config is refused. Files are read with `weights_only=True`.
+"""
+
+from __future__ import annotations
+
+import datetime
+import hashlib
+import json
+import os
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from .errors import WeightsError
+from .pipeline import Pipeline
+
+FORMAT = "i2pbench-checkpoint/1"
+EXTRACTOR_KINDS = ("extractor2d", "extractor3d")
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    path: Path
+    meta: dict[str, Any]
+    state: dict[str, dict[str, torch.Tensor]]  # stage kind -> state dict
+
+    @property
+    def identity(self) -> str:
+        """`<file stem>@<first 8 hex of the file's sha256>`: names the exact bytes that produced a result."""
+        return f"{self.path.stem}@{file_digest(self.path)[:8]}"
+
+    @property
+    def trained_on(self) -> str:
+        data = self.meta.get("trained_on", {})
+        return f"{data.get('dataset', '?')}/{data.get('split', '?')}, {self.meta.get('steps', '?')} steps"
+
+
+def file_digest(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def git_commit() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=5,
+                             cwd=Path(__file__).resolve().parent)
+        return out.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def stage_signature(pipeline: Pipeline) -> dict[str, dict[str, Any]]:
+    """Name and config of every learned stage and extractor: what a checkpoint must agree with."""
+    kinds = list(pipeline.learned_modules()) + [k for k in EXTRACTOR_KINDS if k in pipeline.stages]
+    return {k: {"name": pipeline.stages[k].name, "conf": _jsonable(pipeline.stages[k].conf)} for k in sorted(kinds)}
+
+
+def _jsonable(value: Any) -> Any:
+    return json.loads(json.dumps(value, default=str))
+
+
+def save_checkpoint(path: str | Path, pipeline: Pipeline, **meta: Any) -> Path:
+    """Write atomically (temp file + rename), so an interrupted save never leaves a truncated checkpoint."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    full_meta = {
+        "format": FORMAT,
+        "stages": stage_signature(pipeline),
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "git_commit": git_commit(),
+        "size_mb": round(pipeline.model_size_mb(), 3),
+        "torch": torch.__version__,
+        **_jsonable(meta),
+    }
+    payload = {"meta": json.dumps(full_meta), "state": {k: m.state_dict() for k, m in pipeline.learned_modules().items()}}
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        torch.save(payload, tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def load_checkpoint(path: str | Path) -> Checkpoint:
+    path = Path(path)
+    if not path.is_file():
+        raise WeightsError(f"checkpoint {path} does not exist")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+        meta = json.loads(payload["meta"])
+        state = payload["state"]
+    except Exception as exc:
+        raise WeightsError(f"checkpoint {path} is not a readable i2pbench checkpoint: {exc}") from exc
+    if meta.get("format") != FORMAT:
+        raise WeightsError(f"checkpoint {path} has format {meta.get('format')!r}, expected {FORMAT!r}")
+    return Checkpoint(path, meta, state)
+
+
+def mismatch(checkpoint: Checkpoint, pipeline: Pipeline, *, strict_extractors: bool) -> str | None:
+    """Why this checkpoint does not fit the pipeline, or None if it does."""
+    want, have = stage_signature(pipeline), checkpoint.meta["stages"]
+    kinds = set(want) | set(have)
+    if not strict_extractors:
+        kinds -= set(EXTRACTOR_KINDS)
+    for kind in sorted(kinds):
+        w, h = want.get(kind), have.get(kind)
+        if w != h:
+            return (f"{kind}: the pipeline has {_short(w)} but checkpoint {checkpoint.path.name} was trained with "
+                    f"{_short(h)}")
+    return None
+
+
+def _short(sig: dict[str, Any] | None) -> str:
+    return "nothing" if sig is None else f"{sig['name']!r} {sig['conf']}"
+
+
+def apply_checkpoint(pipeline: Pipeline, checkpoint: Checkpoint) -> None:
+    """Load the state dicts and stamp the pipeline with the checkpoint's identity."""
+    reason = mismatch(checkpoint, pipeline, strict_extractors=False)
+    if reason:
+        raise WeightsError(f"refusing checkpoint: {reason}")
+    for kind, module in pipeline.learned_modules().items():
+        try:
+            module.load_state_dict(checkpoint.state[kind])
+        except (KeyError, RuntimeError) as exc:
+            raise WeightsError(f"checkpoint {checkpoint.path}: cannot load {module.label}: {exc}") from exc
+    pipeline.weights_identity = checkpoint.identity
+    pipeline.weights_meta = {"trained_on": checkpoint.trained_on, **checkpoint.meta}
+
+
+def select_checkpoint(pipeline: Pipeline, choice: str, shipped: list[str]) -> Checkpoint | None:
+    """Resolve `--weights`: "untrained", "auto" (a shipped checkpoint trained with exactly these stages), or a path."""
+    if not pipeline.learned_modules() or choice == "untrained":
+        return None
+    if choice != "auto":
+        return load_checkpoint(choice)
+    for path in shipped:
+        checkpoint = load_checkpoint(path)
+        if mismatch(checkpoint, pipeline, strict_extractors=True) is None:
+            return checkpoint
+    return None
