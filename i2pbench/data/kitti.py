@@ -74,7 +74,9 @@ def read_points(path: Path) -> np.ndarray:
     points = np.fromfile(path, dtype=np.float32).reshape(-1, 4)
     bad = ~np.isfinite(points).all(axis=1)
     if bad.any():
-        raise DataError(f"{path}: {int(bad.sum())} of {len(points)} points hold NaN or inf (first at row {bad.argmax()})")
+        raise DataError(
+            f"{path}: {int(bad.sum())} of {len(points)} points hold NaN or inf (first at row {bad.argmax()})"
+        )
     points[:, 3] = np.clip(points[:, 3], 0.0, 1.0)
     return points
 
