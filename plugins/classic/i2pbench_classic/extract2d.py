@@ -1,0 +1,123 @@
+"""Image keypoints: edge pixels from LSD (the paper's choice), Canny and Sobel (its ablations), and random pixels.
+
+Every extractor works on the grayscale image, returns pixel centres as float32 (u = column, v = row) in raster order,
+and caps the count with the seeded rule in `capping` (uniform subset without replacement, sorted), so it is
+deterministic per (seed, dataset, frame id).
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import cv2
+import numpy as np
+
+from i2pbench.api import Extractor2D, Frame, Keypoints2D
+
+from .capping import cap
+
+CAP_CONF: dict[str, Any] = {
+    "max_keypoints": 3000,  # keep at most this many (seeded uniform subset); None keeps every edge pixel
+    "seed": 0,  # seeds the subset together with the dataset and frame id
+}
+
+
+def grayscale(image: np.ndarray) -> np.ndarray:
+    """[H x W] uint8 luminance of an RGB image (what the paper's detectors run on)."""
+    return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
+
+
+def rasterise_segments(segments: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """[H x W] bool mask of the pixels on [K x 4] segments (x1, y1, x2, y2), pixel centres at integer coordinates.
+
+    Each segment is sampled at steps of at most one pixel along its major axis (a DDA line, 8-connected) and every
+    sample is rounded to the nearest pixel; samples outside the image are dropped. Vectorised over all segments.
+    """
+    width, height = size
+    mask = np.zeros((height, width), dtype=bool)
+    if len(segments) == 0:
+        return mask
+    x1, y1, x2, y2 = (segments[:, i].astype(np.float64) for i in range(4))
+    steps = np.ceil(np.maximum(np.abs(x2 - x1), np.abs(y2 - y1))).astype(np.int64)
+    counts = steps + 1
+    seg = np.repeat(np.arange(len(segments)), counts)
+    k = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+    t = k / np.maximum(steps, 1)[seg]
+    u = np.floor(x1[seg] + t * (x2 - x1)[seg] + 0.5).astype(np.int64)
+    v = np.floor(y1[seg] + t * (y2 - y1)[seg] + 0.5).astype(np.int64)
+    inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    mask[v[inside], u[inside]] = True
+    return mask
+
+
+def pixels_to_keypoints(rows: np.ndarray, cols: np.ndarray, frame: Frame, conf: dict[str, Any]) -> Keypoints2D:
+    """Cap candidate pixels (raster order) with the seeded rule and pack them as (u, v)."""
+    keep = cap(len(rows), conf["max_keypoints"], conf["seed"], frame)
+    uv = np.stack([cols[keep], rows[keep]], axis=1).astype(np.float32)
+    return Keypoints2D(uv=uv.reshape(-1, 2))
+
+
+class EdgeExtractor2D(Extractor2D):
+    """An extractor defined by a boolean edge mask of the grayscale image."""
+
+    default_conf: ClassVar[dict[str, Any]] = dict(CAP_CONF)
+
+    def edge_mask(self, gray: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def __call__(self, frame: Frame) -> Keypoints2D:
+        rows, cols = np.nonzero(self.edge_mask(grayscale(frame.image)))
+        return pixels_to_keypoints(rows, cols, frame, self.conf)
+
+
+class LSDExtractor(EdgeExtractor2D):
+    """Every pixel on every LSD segment (OpenCV's detector, default parameters, as the paper: no threshold tuning)."""
+
+    name = "lsd"
+
+    def edge_mask(self, gray: np.ndarray) -> np.ndarray:
+        lines = cv2.createLineSegmentDetector().detect(gray)[0]
+        segments = np.zeros((0, 4)) if lines is None else lines.reshape(-1, 4)
+        return rasterise_segments(segments, (gray.shape[1], gray.shape[0]))
+
+
+class CannyExtractor(EdgeExtractor2D):
+    """Canny edge pixels with the paper's thresholds (50, 150)."""
+
+    name = "canny"
+    default_conf: ClassVar[dict[str, Any]] = {
+        **CAP_CONF,
+        "low": 50,  # hysteresis thresholds on the gradient magnitude
+        "high": 150,
+    }
+
+    def edge_mask(self, gray: np.ndarray) -> np.ndarray:
+        return cv2.Canny(gray, self.conf["low"], self.conf["high"]) > 0
+
+
+class SobelExtractor(EdgeExtractor2D):
+    """Pixels whose 3x3 Sobel gradient magnitude sqrt(dx^2 + dy^2) exceeds 150 (the paper's Sobel ablation)."""
+
+    name = "sobel"
+    default_conf: ClassVar[dict[str, Any]] = {
+        **CAP_CONF,
+        "threshold": 150.0,  # on the gradient magnitude of the uint8 grayscale image
+        "ksize": 3,  # Sobel aperture
+    }
+
+    def edge_mask(self, gray: np.ndarray) -> np.ndarray:
+        dx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=self.conf["ksize"])
+        dy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=self.conf["ksize"])
+        return cv2.magnitude(dx, dy) > self.conf["threshold"]
+
+
+class RandomExtractor2D(Extractor2D):
+    """max_keypoints pixels drawn uniformly without replacement: the no-edge baseline (same seeded rule as the cap)."""
+
+    name = "random"
+    default_conf: ClassVar[dict[str, Any]] = dict(CAP_CONF)
+
+    def __call__(self, frame: Frame) -> Keypoints2D:
+        width, height = frame.image_size
+        rows, cols = np.divmod(np.arange(width * height, dtype=np.int64), width)
+        return pixels_to_keypoints(rows, cols, frame, self.conf)
