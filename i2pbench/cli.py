@@ -33,7 +33,9 @@ def _add_run_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--grid", help="YAML grid file: base: {kind: name}, grid: {kind: [names]}")
     p.add_argument("--conf", action="append", default=[], metavar="KIND.KEY=VALUE", help="component config override")
     _add_data_options(p)
-    p.add_argument("--weights", default="auto", help="'auto' (shipped checkpoint fitting the stages), 'untrained', or a path")
+    p.add_argument(
+        "--weights", default="auto", help="'auto' (shipped checkpoint fitting the stages), 'untrained', or a path"
+    )
     p.add_argument("--seed", type=int, default=0, help="protocol seed for the random transforms")
     p.add_argument("--runs-dir", default="runs", help="where per-frame results are cached")
     p.add_argument("--out", help="leaderboard file stem (default leaderboards/<dataset>-<split>)")
@@ -62,8 +64,16 @@ def cmd_plugins(args: argparse.Namespace) -> int:
     from .plugins import components_of, default_registry
 
     registry = default_registry()
-    rows = [{"plugin": i.name, "version": i.version, "distribution": i.distribution, "hooks": list(i.hooks),
-             "components": components_of(registry, i.name)} for i in registry.plugins]
+    rows = [
+        {
+            "plugin": i.name,
+            "version": i.version,
+            "distribution": i.distribution,
+            "hooks": list(i.hooks),
+            "components": components_of(registry, i.name),
+        }
+        for i in registry.plugins
+    ]
     if args.json:
         print(json.dumps(rows, indent=2))
         return 0
@@ -110,11 +120,26 @@ def cmd_run(args: argparse.Namespace) -> int:
     frame_ids = dataset.frame_ids()[: args.frames]
     protocol = Protocol(seed=args.seed)
     store = ResultsStore(Path(args.runs_dir) / f"{dataset.name}-{dataset.split}")
-    store.write_meta({"protocol": protocol.card(), "dataset": dataset.identity(), "environment": environment(),
-                      "combinations": [c.describe() for c in combinations]})
+    store.write_meta(
+        {
+            "protocol": protocol.card(),
+            "dataset": dataset.identity(),
+            "environment": environment(),
+            "combinations": [c.describe() for c in combinations],
+        }
+    )
     bar = tqdm(total=len(frame_ids) * len(combinations), disable=args.quiet, unit="frame", file=sys.stderr)
-    records = run_grid(registry, combinations, dataset, protocol, store, weights=args.weights, frame_ids=frame_ids,
-                       overwrite=args.overwrite, progress=bar.update)
+    records = run_grid(
+        registry,
+        combinations,
+        dataset,
+        protocol,
+        store,
+        weights=args.weights,
+        frame_ids=frame_ids,
+        overwrite=args.overwrite,
+        progress=bar.update,
+    )
     bar.close()
     board = leaderboard.build(records, protocol)
     out = args.out or f"leaderboards/{dataset.name}-{dataset.split}"

@@ -21,8 +21,11 @@ def _shape(array: object) -> str:
 def check_keypoints2d(kp: object, frame: Frame, component: str) -> Keypoints2D:
     _require(isinstance(kp, Keypoints2D), component, f"returned {type(kp).__name__}, expected Keypoints2D")
     uv = kp.uv
-    _require(isinstance(uv, np.ndarray) and uv.ndim == 2 and uv.shape[1] == 2, component,
-             f"keypoints uv must be [M x 2], got {_shape(uv)}")
+    _require(
+        isinstance(uv, np.ndarray) and uv.ndim == 2 and uv.shape[1] == 2,
+        component,
+        f"keypoints uv must be [M x 2], got {_shape(uv)}",
+    )
     _require(bool(np.all(np.isfinite(uv))), component, "keypoints contain NaN or inf")
     w, h = frame.image_size
     inside = (uv[:, 0] >= -0.5) & (uv[:, 0] <= w - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] <= h - 0.5)
@@ -45,8 +48,11 @@ def check_keypoints3d(kp: object, frame: Frame, component: str) -> Keypoints3D:
 def check_descriptors(desc: object, count: int, component: str) -> torch.Tensor | None:
     if desc is None:
         return None
-    _require(isinstance(desc, torch.Tensor) and desc.ndim == 2 and desc.shape[0] == count, component,
-             f"descriptors must be a [{count} x D] tensor, got {_shape(desc)}")
+    _require(
+        isinstance(desc, torch.Tensor) and desc.ndim == 2 and desc.shape[0] == count,
+        component,
+        f"descriptors must be a [{count} x D] tensor, got {_shape(desc)}",
+    )
     _require(bool(torch.isfinite(desc).all()), component, "descriptors contain NaN or inf")
     return desc
 
@@ -61,23 +67,37 @@ def check_features(features: object, n2d: int, n3d: int, component: str) -> Feat
 def check_matches(matches: object, n2d: int, n3d: int, component: str) -> Matches:
     _require(isinstance(matches, Matches), component, f"returned {type(matches).__name__}, expected Matches")
     k = len(matches.index2d)
-    _require(matches.index3d.shape == (k,) and matches.score.shape == (k,), component,
-             f"index2d, index3d and score must all be [K]; got {_shape(matches.index2d)}, "
-             f"{_shape(matches.index3d)}, {_shape(matches.score)}")
-    _require(k == 0 or (0 <= matches.index2d.min() and matches.index2d.max() < n2d), component,
-             f"index2d out of range for {n2d} 2D keypoints")
-    _require(k == 0 or (0 <= matches.index3d.min() and matches.index3d.max() < n3d), component,
-             f"index3d out of range for {n3d} 3D keypoints")
+    _require(
+        matches.index3d.shape == (k,) and matches.score.shape == (k,),
+        component,
+        f"index2d, index3d and score must all be [K]; got {_shape(matches.index2d)}, "
+        f"{_shape(matches.index3d)}, {_shape(matches.score)}",
+    )
+    _require(
+        k == 0 or (0 <= matches.index2d.min() and matches.index2d.max() < n2d),
+        component,
+        f"index2d out of range for {n2d} 2D keypoints",
+    )
+    _require(
+        k == 0 or (0 <= matches.index3d.min() and matches.index3d.max() < n3d),
+        component,
+        f"index3d out of range for {n3d} 3D keypoints",
+    )
     return matches
 
 
 def check_estimate(estimate: object, component: str) -> PoseEstimate:
-    _require(isinstance(estimate, PoseEstimate), component, f"returned {type(estimate).__name__}, expected PoseEstimate")
+    _require(
+        isinstance(estimate, PoseEstimate), component, f"returned {type(estimate).__name__}, expected PoseEstimate"
+    )
     if estimate.T is not None:
         T = estimate.T
         _require(isinstance(T, np.ndarray) and T.shape == (4, 4), component, f"T must be 4x4, got {_shape(T)}")
         _require(bool(np.all(np.isfinite(T))), component, "T contains NaN or inf")
         R = T[:3, :3]
-        _require(np.allclose(R @ R.T, np.eye(3), atol=1e-4) and np.linalg.det(R) > 0, component,
-                 "T's rotation block is not a rotation matrix")
+        _require(
+            np.allclose(R @ R.T, np.eye(3), atol=1e-4) and np.linalg.det(R) > 0,
+            component,
+            "T's rotation block is not a rotation matrix",
+        )
     return estimate

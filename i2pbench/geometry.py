@@ -28,7 +28,9 @@ def transform_points(T: np.ndarray, xyz: np.ndarray) -> np.ndarray:
     return xyz @ T[:3, :3].T + T[:3, 3]
 
 
-def project(K: np.ndarray, T_cam_pts: np.ndarray, xyz: np.ndarray, min_depth: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+def project(
+    K: np.ndarray, T_cam_pts: np.ndarray, xyz: np.ndarray, min_depth: float = 0.1
+) -> tuple[np.ndarray, np.ndarray]:
     """Project [N x 3] points with camera <- points transform; returns ([N x 2] pixels, [N] bool in front)."""
     cam = transform_points(T_cam_pts, xyz)
     depth = cam[:, 2]

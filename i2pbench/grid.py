@@ -30,13 +30,18 @@ def parse_conf_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
 def base_combinations(registry: Registry, preset: str | None) -> list[dict[str, str]]:
     """The preset's combinations, or the "default" preset's when none is named."""
     if preset is None and "default" not in registry.presets:
-        raise PluginError("no 'default' preset is registered; name the stages or a --preset "
-                          f"(known: {', '.join(sorted(registry.presets)) or 'none'})")
+        raise PluginError(
+            "no 'default' preset is registered; name the stages or a --preset "
+            f"(known: {', '.join(sorted(registry.presets)) or 'none'})"
+        )
     return [dict(c) for c in registry.preset(preset or "default").combinations]
 
 
-def expand(bases: Sequence[Mapping[str, str]], choices: Mapping[str, Sequence[str]],
-           confs: Mapping[str, Mapping[str, Any]] | None = None) -> list[Combination]:
+def expand(
+    bases: Sequence[Mapping[str, str]],
+    choices: Mapping[str, Sequence[str]],
+    confs: Mapping[str, Mapping[str, Any]] | None = None,
+) -> list[Combination]:
     """The product of the per-stage choices, applied over each base combination (duplicates dropped)."""
     kinds = [k for k in STAGE_ORDER if choices.get(k)]
     seen, out = set(), []

@@ -36,8 +36,10 @@ def _row(records: pd.DataFrame, protocol: Protocol) -> dict:
         ACC: round(stats["acc_pct"], 2),
         RTE: _pm(stats["rte_mean"], stats["rte_std"]),
         RRE: _pm(stats["rre_mean"], stats["rre_std"]),
-        "rte_mean": stats["rte_mean"], "rte_std": stats["rte_std"],
-        "rre_mean": stats["rre_mean"], "rre_std": stats["rre_std"],
+        "rte_mean": stats["rte_mean"],
+        "rte_std": stats["rte_std"],
+        "rre_mean": stats["rre_mean"],
+        "rre_std": stats["rre_std"],
         "geodesic median (°) ↓": float(np.nanmedian(geo)) if geo.notna().any() else np.nan,
         "model size (MB) ↓": round(float(first["model_size_mb"]), 3),
         "latency median (ms) ↓": 1e3 * float(records["t_total_s"].median()),
@@ -53,8 +55,10 @@ def _row(records: pd.DataFrame, protocol: Protocol) -> dict:
 def build(records: pd.DataFrame, protocol: Protocol | None = None) -> pd.DataFrame:
     """Aggregate per-frame records into the leaderboard, best Acc. first."""
     protocol = protocol or Protocol()
-    rows = [{**dict(zip(GROUP, key, strict=True)), **_row(group, protocol)}
-            for key, group in records.groupby(GROUP, sort=False, dropna=False)]
+    rows = [
+        {**dict(zip(GROUP, key, strict=True)), **_row(group, protocol)}
+        for key, group in records.groupby(GROUP, sort=False, dropna=False)
+    ]
     board = pd.DataFrame(rows)
     return board.sort_values([ACC, "rre_mean"], ascending=[False, True], kind="stable").reset_index(drop=True)
 

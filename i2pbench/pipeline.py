@@ -31,7 +31,7 @@ from .components import (
 )
 from .errors import PluginError, StageError
 from .plugins import Registry
-from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
+from .types import Features, Frame, Keypoints2D, Keypoints3D, PoseEstimate
 
 NONE = "none"  # a stage set to "none" is skipped
 REQUIRED_STAGES = ("extractor2d", "extractor3d", "matcher", "solver")
@@ -124,26 +124,31 @@ class Pipeline:
         """Run every stage on one frame; never raises for a stage's failure."""
         timings: dict[str, float] = {}
         counts = {"n_kp2d": 0, "n_kp3d": 0, "n_matches": 0}
-        kind = ""
+        current = [""]  # the stage running when an exception escapes
         try:
             with torch.inference_mode():
-                for kind, result in self._stages(frame, timings):
+                for kind, result in self._stages(frame, timings, current):
                     _count(kind, result, counts)
             estimate = result
             return FrameOutcome(estimate, timings, **counts, error="" if estimate.ok else estimate.message)
         except Exception as exc:  # the failure is the result: record it, name the component, go on
-            component = self.stages[kind].label if kind in self.stages else "pipeline"
-            message = str(exc) if isinstance(exc, StageError) else f"{component}: {_describe(exc)}"
-            return FrameOutcome(PoseEstimate.failed(message), timings, **counts, error=message,
-                                failed_component=component)
+            if isinstance(exc, StageError):
+                component, message = exc.component, str(exc)
+            else:
+                component = self.stages[current[0]].label if current[0] in self.stages else "pipeline"
+                message = f"{component}: {_describe(exc)}"
+            return FrameOutcome(
+                PoseEstimate.failed(message), timings, **counts, error=message, failed_component=component
+            )
 
-    def _stages(self, frame: Frame, timings: dict[str, float]):
+    def _stages(self, frame: Frame, timings: dict[str, float], current: list[str]):
         """Yield (kind, output) for each stage in order, timing each one and checking its output."""
         hidden = frame.without_ground_truth()
         s = self.stages
 
         def call(kind: str, *args: Any) -> Any:
             component = s[kind]
+            current[0] = kind
             view = frame if GROUND_TRUTH in component.consumes else hidden
             start = time.perf_counter()
             out = component(view, *args)
@@ -156,8 +161,9 @@ class Pipeline:
         kp3d = contracts.check_keypoints3d(call("extractor3d"), frame, s["extractor3d"].label)
         yield "extractor3d", kp3d
         features = self._features(call, kp2d, kp3d)
-        matches = contracts.check_matches(call("matcher", kp2d, kp3d, features), len(kp2d), len(kp3d),
-                                          s["matcher"].label)
+        matches = contracts.check_matches(
+            call("matcher", kp2d, kp3d, features), len(kp2d), len(kp3d), s["matcher"].label
+        )
         yield "matcher", matches
         yield "solver", contracts.check_estimate(call("solver", kp2d, kp3d, matches), s["solver"].label)
 
@@ -169,8 +175,9 @@ class Pipeline:
         d3 = contracts.check_descriptors(d3, len(kp3d), s["encoder3d"].label) if "encoder3d" in s else None
         features = Features(d2, d3)
         if "exchanger" in s:
-            features = contracts.check_features(call("exchanger", kp2d, kp3d, features), len(kp2d), len(kp3d),
-                                                s["exchanger"].label)
+            features = contracts.check_features(
+                call("exchanger", kp2d, kp3d, features), len(kp2d), len(kp3d), s["exchanger"].label
+            )
         return features
 
 

@@ -107,7 +107,9 @@ def make_plugin_manager(extra_plugins: tuple[object, ...] = ()) -> tuple[pluggy.
         pm.register(plugin, name=ep.name)
         dist = ep.dist
         infos.append(
-            PluginInfo(ep.name, dist.version if dist else "?", dist.metadata["Name"] if dist else "?", _hooks_of(plugin))
+            PluginInfo(
+                ep.name, dist.version if dist else "?", dist.metadata["Name"] if dist else "?", _hooks_of(plugin)
+            )
         )
     for plugin in extra_plugins:
         name = getattr(plugin, "__name__", type(plugin).__name__)
@@ -132,7 +134,9 @@ def _add_component(registry: Registry, kind: str, cls: type, plugin: str) -> Non
         raise PluginError(f"plugin {plugin!r} registered {cls.__name__} without a `name`")
     table = registry.components[kind]
     if cls.name in table and table[cls.name][0] is not cls:
-        raise PluginError(f"{kind} name {cls.name!r} is registered by both plugin {table[cls.name][1]!r} and {plugin!r}")
+        raise PluginError(
+            f"{kind} name {cls.name!r} is registered by both plugin {table[cls.name][1]!r} and {plugin!r}"
+        )
     table[cls.name] = (cls, plugin)
 
 
@@ -140,7 +144,9 @@ def _add_dataset(registry: Registry, cls: type, plugin: str) -> None:
     if not (isinstance(cls, type) and issubclass(cls, Dataset) and cls.name):
         raise PluginError(f"plugin {plugin!r} registered {cls!r} as a dataset; it must subclass Dataset and set name")
     if cls.name in registry.datasets and registry.datasets[cls.name][0] is not cls:
-        raise PluginError(f"dataset {cls.name!r} is registered by both {registry.datasets[cls.name][1]!r} and {plugin!r}")
+        raise PluginError(
+            f"dataset {cls.name!r} is registered by both {registry.datasets[cls.name][1]!r} and {plugin!r}"
+        )
     registry.datasets[cls.name] = (cls, plugin)
 
 

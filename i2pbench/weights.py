@@ -48,8 +48,13 @@ def file_digest(path: Path) -> str:
 
 def git_commit() -> str:
     try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=5,
-                             cwd=Path(__file__).resolve().parent)
+        out = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=5,
+            cwd=Path(__file__).resolve().parent,
+        )
         return out.stdout.strip() or "unknown"
     except (OSError, subprocess.SubprocessError):
         return "unknown"
@@ -78,7 +83,10 @@ def save_checkpoint(path: str | Path, pipeline: Pipeline, **meta: Any) -> Path:
         "torch": torch.__version__,
         **_jsonable(meta),
     }
-    payload = {"meta": json.dumps(full_meta), "state": {k: m.state_dict() for k, m in pipeline.learned_modules().items()}}
+    payload = {
+        "meta": json.dumps(full_meta),
+        "state": {k: m.state_dict() for k, m in pipeline.learned_modules().items()},
+    }
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
     try:
@@ -114,8 +122,10 @@ def mismatch(checkpoint: Checkpoint, pipeline: Pipeline, *, strict_extractors: b
     for kind in sorted(kinds):
         w, h = want.get(kind), have.get(kind)
         if w != h:
-            return (f"{kind}: the pipeline has {_short(w)} but checkpoint {checkpoint.path.name} was trained with "
-                    f"{_short(h)}")
+            return (
+                f"{kind}: the pipeline has {_short(w)} but checkpoint {checkpoint.path.name} was trained with "
+                f"{_short(h)}"
+            )
     return None
 
 

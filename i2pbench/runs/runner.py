@@ -53,14 +53,28 @@ def prepare(registry: Registry, combinations: Sequence[Combination], weights: st
 
 
 def frame_key(dataset: Dataset, frame_id: str, job: Job, protocol: Protocol) -> str:
-    return cache_key({
-        "data": dataset.identity(), "frame": frame_id, "stages": job.combination.describe(),
-        "weights": job.weights, "protocol": protocol.card(),
-    })
+    return cache_key(
+        {
+            "data": dataset.identity(),
+            "frame": frame_id,
+            "stages": job.combination.describe(),
+            "weights": job.weights,
+            "protocol": protocol.card(),
+        }
+    )
 
 
-def run_job(job: Job, dataset: Dataset, frame_ids: Sequence[str], protocol: Protocol, store: ResultsStore,
-            *, overwrite: bool = False, warmup: int = 1, progress: Progress | None = None) -> list[str]:
+def run_job(
+    job: Job,
+    dataset: Dataset,
+    frame_ids: Sequence[str],
+    protocol: Protocol,
+    store: ResultsStore,
+    *,
+    overwrite: bool = False,
+    warmup: int = 1,
+    progress: Progress | None = None,
+) -> list[str]:
     """Run one combination over frames, skipping those already stored; returns the frames' cache keys."""
     keys = [frame_key(dataset, f, job, protocol) for f in frame_ids]
     todo = [(k, f) for k, f in zip(keys, frame_ids, strict=True) if overwrite or not store.has(k)]
@@ -91,27 +105,48 @@ def run_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> 
     try:
         frame = protocol.apply(dataset.load(frame_id))
     except I2PBenchError as exc:
-        outcome = FrameOutcome(PoseEstimate.failed(str(exc)), {}, error=str(exc), failed_component=f"dataset {dataset.name!r}")
+        outcome = FrameOutcome(
+            PoseEstimate.failed(str(exc)), {}, error=str(exc), failed_component=f"dataset {dataset.name!r}"
+        )
         return _record(job, dataset, frame_id, protocol, outcome, None, time.perf_counter() - start)
     outcome = job.pipeline.run(frame)
     return _record(job, dataset, frame_id, protocol, outcome, frame.T_gt, time.perf_counter() - start)
 
 
-def _record(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol, outcome: FrameOutcome,
-            T_gt: np.ndarray | None, wall: float) -> dict[str, Any]:
+def _record(
+    job: Job,
+    dataset: Dataset,
+    frame_id: str,
+    protocol: Protocol,
+    outcome: FrameOutcome,
+    T_gt: np.ndarray | None,
+    wall: float,
+) -> dict[str, Any]:
     T_pred = outcome.estimate.T
     errors = pose_errors(T_pred, T_gt) if T_gt is not None else pose_errors(None, np.eye(4))
     record: dict[str, Any] = {
-        "dataset": dataset.name, "split": dataset.split, "frame_id": frame_id,
-        "combination": job.combination.label, "combination_key": job.combination.key(),
+        "dataset": dataset.name,
+        "split": dataset.split,
+        "frame_id": frame_id,
+        "combination": job.combination.label,
+        "combination_key": job.combination.key(),
         **{kind: job.combination.name(kind) for kind in STAGE_ORDER},
-        "weights": job.weights, "weights_trained_on": job.pipeline.weights_meta.get("trained_on", ""),
-        "protocol": protocol.identity(), "status": "ok" if T_pred is not None else "failed",
-        "error": outcome.error, "failed_component": outcome.failed_component,
-        "rte_m": errors.rte_m, "rre_deg": errors.rre_deg, "geodesic_deg": errors.geodesic_deg,
-        "n_kp2d": outcome.n_kp2d, "n_kp3d": outcome.n_kp3d, "n_matches": outcome.n_matches,
-        "n_inliers": outcome.n_inliers, "model_size_mb": job.pipeline.model_size_mb(),
-        "t_total_s": sum(outcome.timings.values()), "wall_s": wall,
+        "weights": job.weights,
+        "weights_trained_on": job.pipeline.weights_meta.get("trained_on", ""),
+        "protocol": protocol.identity(),
+        "status": "ok" if T_pred is not None else "failed",
+        "error": outcome.error,
+        "failed_component": outcome.failed_component,
+        "rte_m": errors.rte_m,
+        "rre_deg": errors.rre_deg,
+        "geodesic_deg": errors.geodesic_deg,
+        "n_kp2d": outcome.n_kp2d,
+        "n_kp3d": outcome.n_kp3d,
+        "n_matches": outcome.n_matches,
+        "n_inliers": outcome.n_inliers,
+        "model_size_mb": job.pipeline.model_size_mb(),
+        "t_total_s": sum(outcome.timings.values()),
+        "wall_s": wall,
         "T_pred": (T_pred.ravel().tolist() if T_pred is not None else None),
         "T_gt": (T_gt.ravel().tolist() if T_gt is not None else None),
     }
@@ -119,9 +154,18 @@ def _record(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol, outco
     return record
 
 
-def run_grid(registry: Registry, combinations: Sequence[Combination], dataset: Dataset, protocol: Protocol,
-             store: ResultsStore, *, weights: str = "auto", frame_ids: Sequence[str] | None = None,
-             overwrite: bool = False, progress: Progress | None = None) -> pd.DataFrame:
+def run_grid(
+    registry: Registry,
+    combinations: Sequence[Combination],
+    dataset: Dataset,
+    protocol: Protocol,
+    store: ResultsStore,
+    *,
+    weights: str = "auto",
+    frame_ids: Sequence[str] | None = None,
+    overwrite: bool = False,
+    progress: Progress | None = None,
+) -> pd.DataFrame:
     """Run every combination over the split; returns this grid's per-frame records (cached ones included)."""
     jobs = prepare(registry, combinations, weights)
     frame_ids = list(frame_ids if frame_ids is not None else dataset.frame_ids())
