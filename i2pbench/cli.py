@@ -1,161 +1,29 @@
-"""The `i2pbench` command: plugins, run, data, train, compare, diagnose."""
+"""The `i2pbench` command line: each subcommand lives in its own module under `i2pbench.commands`."""
 
 from __future__ import annotations
 
 import argparse
-import json
+import importlib
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 
 from .errors import I2PBenchError
 
-STAGE_OPTIONS = {
-    "extractor2d": ("--extractor", "--extractor2d"),
-    "extractor3d": ("--extractor3d",),
-    "encoder2d": ("--encoder2d",),
-    "encoder3d": ("--encoder3d",),
-    "exchanger": ("--exchanger",),
-    "matcher": ("--matcher",),
-    "solver": ("--solver",),
-}
-
-
-def _split_list(value: str) -> list[str]:
-    return [v.strip() for v in value.split(",") if v.strip()]
-
-
-def _add_run_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("run", help="run combinations of stages over a dataset split and print the leaderboard")
-    for kind, flags in STAGE_OPTIONS.items():
-        p.add_argument(*flags, dest=kind, type=_split_list, help=f"{kind} name(s), comma-separated; 'none' skips")
-    p.add_argument("--preset", help="a registered list of combinations (e.g. edge-ablation)")
-    p.add_argument("--grid", help="YAML grid file: base: {kind: name}, grid: {kind: [names]}")
-    p.add_argument("--conf", action="append", default=[], metavar="KIND.KEY=VALUE", help="component config override")
-    _add_data_options(p)
-    p.add_argument(
-        "--weights", default="auto", help="'auto' (shipped checkpoint fitting the stages), 'untrained', or a path"
-    )
-    p.add_argument("--seed", type=int, default=0, help="protocol seed for the random transforms")
-    p.add_argument("--runs-dir", default="runs", help="where per-frame results are cached")
-    p.add_argument("--out", help="leaderboard file stem (default leaderboards/<dataset>-<split>)")
-    p.add_argument("--overwrite", action="store_true", help="recompute frames already in the cache")
-    p.add_argument("--threads", type=int, default=None, help="torch threads (recorded with the results)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-
-
-def _add_data_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--dataset", default="synthetic", help="dataset name (kitti, nuscenes, synthetic, ...)")
-    p.add_argument("--split", default="test")
-    p.add_argument("--data-root", help="dataset root directory (else I2PBENCH_<NAME>_ROOT)")
-    p.add_argument("--frames", type=int, default=None, help="use only the first N frames of the split")
+COMMANDS = ("plugins", "run")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="i2pbench", description=__doc__)
+    parser = argparse.ArgumentParser(prog="i2pbench", description="Benchmark image-to-LiDAR registration.")
     sub = parser.add_subparsers(dest="command", required=True)
-    plugins = sub.add_parser("plugins", help="list installed plugins and the components they register")
-    plugins.add_argument("--json", action="store_true")
-    _add_run_parser(sub)
+    for name in COMMANDS:
+        importlib.import_module(f"i2pbench.commands.{name}").add_parser(sub)
     return parser
-
-
-def cmd_plugins(args: argparse.Namespace) -> int:
-    from .plugins import components_of, default_registry
-
-    registry = default_registry()
-    rows = [
-        {
-            "plugin": i.name,
-            "version": i.version,
-            "distribution": i.distribution,
-            "hooks": list(i.hooks),
-            "components": components_of(registry, i.name),
-        }
-        for i in registry.plugins
-    ]
-    if args.json:
-        print(json.dumps(rows, indent=2))
-        return 0
-    for row in rows:
-        print(f"{row['plugin']} {row['version']} ({row['distribution']})")
-        for kind, names in row["components"].items():
-            print(f"  {kind:12s} {', '.join(names)}")
-    return 0
-
-
-def open_dataset(registry, args: argparse.Namespace):
-    conf = {"root": args.data_root} if args.data_root else {}
-    return registry.dataset(args.dataset)(args.split, conf)
-
-
-def _combinations(registry, args: argparse.Namespace):
-    from .grid import base_combinations, expand, load_grid_file, parse_conf_overrides
-
-    choices = {kind: getattr(args, kind) for kind in STAGE_OPTIONS if getattr(args, kind)}
-    bases = base_combinations(registry, args.preset)
-    if args.grid:
-        grid_bases, grid = load_grid_file(args.grid)
-        bases = [{**b, **g} for b in bases for g in grid_bases]
-        choices = {**grid, **choices}
-    return expand(bases, choices, parse_conf_overrides(args.conf))
-
-
-def cmd_run(args: argparse.Namespace) -> int:
-    import torch
-    from tqdm import tqdm
-
-    from . import leaderboard
-    from .plugins import default_registry
-    from .protocol import Protocol
-    from .runs.environment import environment
-    from .runs.runner import run_grid
-    from .runs.store import ResultsStore
-
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    registry = default_registry()
-    combinations = _combinations(registry, args)
-    dataset = open_dataset(registry, args)
-    frame_ids = dataset.frame_ids()[: args.frames]
-    protocol = Protocol(seed=args.seed)
-    store = ResultsStore(Path(args.runs_dir) / f"{dataset.name}-{dataset.split}")
-    store.write_meta(
-        {
-            "protocol": protocol.card(),
-            "dataset": dataset.identity(),
-            "environment": environment(),
-            "combinations": [c.describe() for c in combinations],
-        }
-    )
-    bar = tqdm(total=len(frame_ids) * len(combinations), disable=args.quiet, unit="frame", file=sys.stderr)
-    records = run_grid(
-        registry,
-        combinations,
-        dataset,
-        protocol,
-        store,
-        weights=args.weights,
-        frame_ids=frame_ids,
-        overwrite=args.overwrite,
-        progress=bar.update,
-    )
-    bar.close()
-    board = leaderboard.build(records, protocol)
-    out = args.out or f"leaderboards/{dataset.name}-{dataset.split}"
-    paths = leaderboard.write(board, out)
-    print(leaderboard.to_markdown(board))
-    print(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store.root}", file=sys.stderr)
-    return 0
-
-
-COMMANDS = {"plugins": cmd_plugins, "run": cmd_run}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return COMMANDS[args.command](args)
+        return importlib.import_module(f"i2pbench.commands.{args.command}").run(args)
     except I2PBenchError as exc:
         print(f"i2pbench: error: {exc}", file=sys.stderr)
         return 2
