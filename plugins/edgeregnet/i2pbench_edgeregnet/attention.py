@@ -1,0 +1,119 @@
+"""Attention-based feature exchange: positional encodings, then blocks of self- and cross-attention (SuperGlue style).
+
+Each block updates both sets with self-attention, then exchanges messages 2D <-> 3D with cross-attention computed from
+the same inputs for both directions (as SuperGlue and LightGlue). An update is x + MLP([x, message]) (LightGlue's).
+2D and 3D get their own weights by default (the modalities differ); `share_weights` ties them as SuperGlue does.
+Positions: pixels are centred and divided by half the image's longer side; 3D edge points are centred on their
+centroid and divided by their largest distance to it (translation-invariant, as the PointNet++ encoder's input).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from i2pbench.api import Component, Exchanger, Features, Frame, Keypoints2D, Keypoints3D, LearnedComponent, StageError
+
+from .matching import descriptor_dim_mismatch
+from .pointnet2 import normalize_points
+
+
+def normalize_pixels(uv: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """pixels [M x 2] -> [M x 2], the image centre at 0 and the longer side spanning [-1, 1]."""
+    w, h = size
+    return (uv - uv.new_tensor([w / 2, h / 2])) / (max(w, h) / 2)
+
+
+def mlp(widths: tuple[int, ...]) -> nn.Sequential:
+    """Linear + ReLU layers, the last one linear with a zero bias."""
+    layers: list[nn.Module] = []
+    for cin, cout in zip(widths[:-1], widths[1:], strict=True):
+        layers += [nn.Linear(cin, cout), nn.ReLU(inplace=True)]
+    layers.pop()
+    nn.init.zeros_(layers[-1].bias)
+    return nn.Sequential(*layers)
+
+
+class AttentionalUpdate(nn.Module):
+    """x + MLP([x, MultiHeadAttention(x, source)])."""
+
+    def __init__(self, dim: int, heads: int) -> None:
+        super().__init__()
+        self.heads = heads
+        self.q, self.kv, self.out = nn.Linear(dim, dim), nn.Linear(dim, 2 * dim), nn.Linear(dim, dim)
+        self.ffn = nn.Sequential(nn.Linear(2 * dim, 2 * dim), nn.LayerNorm(2 * dim), nn.GELU(), nn.Linear(2 * dim, dim))
+
+    def forward(self, x: torch.Tensor, source: torch.Tensor) -> torch.Tensor:
+        """x [N x D], source [M x D] -> [N x D]."""
+        q = self.q(x).unflatten(-1, (self.heads, -1)).transpose(0, 1)  # [H x N x D/H]
+        k, v = self.kv(source).unflatten(-1, (2, self.heads, -1)).permute(1, 2, 0, 3)  # 2 x [H x M x D/H]
+        message = F.scaled_dot_product_attention(q[None], k[None], v[None])[0].transpose(0, 1).flatten(1)
+        return x + self.ffn(torch.cat([x, self.out(message)], -1))
+
+
+class ExchangeBlock(nn.Module):
+    """self-attention on each set, then cross-attention both ways."""
+
+    def __init__(self, dim: int, heads: int, share_weights: bool) -> None:
+        super().__init__()
+        self.self2d, self.cross2d = AttentionalUpdate(dim, heads), AttentionalUpdate(dim, heads)
+        self.self3d = self.self2d if share_weights else AttentionalUpdate(dim, heads)
+        self.cross3d = self.cross2d if share_weights else AttentionalUpdate(dim, heads)
+
+    def forward(self, d2: torch.Tensor, d3: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """d2 [M2 x D], d3 [M3 x D] -> same shapes."""
+        d2, d3 = self.self2d(d2, d2), self.self3d(d3, d3)
+        return self.cross2d(d2, d3), self.cross3d(d3, d2)
+
+
+class AttentionExchanger(LearnedComponent, Exchanger):
+    """Positional encodings added to both descriptor sets, then `num_blocks` self + cross attention blocks."""
+
+    name = "attention"
+    default_conf: dict[str, Any] = {
+        "descriptor_dim": 256,  # D, must equal the encoders'
+        "num_blocks": 6,  # stacked self + cross attention blocks
+        "num_heads": 4,
+        "pe_mlp": (32, 64, 128),  # hidden widths of the positional encoders (2D: u, v; 3D: x, y, z) before D
+        "share_weights": False,  # True: one set of attention weights for both modalities (SuperGlue)
+    }
+
+    def __init__(self, conf: dict[str, Any] | None = None) -> None:
+        super().__init__(conf)
+        dim, hidden = self.conf["descriptor_dim"], tuple(self.conf["pe_mlp"])
+        self.pe2d, self.pe3d = mlp((2, *hidden, dim)), mlp((3, *hidden, dim))
+        share = self.conf["share_weights"]
+        self.blocks = nn.ModuleList(
+            ExchangeBlock(dim, self.conf["num_heads"], share) for _ in range(self.conf["num_blocks"])
+        )
+
+    def check_compatible(self, upstream: Mapping[str, Component]) -> str | None:
+        return descriptor_dim_mismatch(self, upstream)
+
+    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Features:
+        if features.desc2d is None or features.desc3d is None:
+            raise StageError(self.label, "needs descriptors on both sides (an encoder2d and an encoder3d)")
+        if len(kp2d) == 0 or len(kp3d) == 0:  # nothing to attend to; the matcher will find no match
+            return features
+        device = next(self.parameters()).device
+        uv = torch.from_numpy(np.asarray(kp2d.uv, np.float32)).to(device)
+        xyz = torch.from_numpy(np.asarray(kp3d.xyz, np.float32)).to(device)
+        d2, d3 = nn.Module.__call__(
+            self, features.desc2d.to(device), features.desc3d.to(device), normalize_pixels(uv, frame.image_size), xyz
+        )
+        return Features(desc2d=d2, desc3d=d3)
+
+    def forward(
+        self, d2: torch.Tensor, d3: torch.Tensor, uv: torch.Tensor, xyz: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """d2 [M2 x D], d3 [M3 x D], uv [M2 x 2] normalised pixels, xyz [M3 x 3] -> updated d2, d3."""
+        d2 = d2.float() + self.pe2d(uv)
+        d3 = d3.float() + self.pe3d(normalize_points(xyz, xyz))
+        for block in self.blocks:
+            d2, d3 = block(d2, d3)
+        return d2, d3

@@ -1,0 +1,116 @@
+"""Optimal matching layer, eq. (7)-(10), with the field-of-view head; its `loss` trains the whole pipeline.
+
+Choices: S uses one Linear per modality (the paper's eq. (7) writes two), scaled by 1/sqrt(D) as LightGlue's so
+initial logits stay moderate. A match is a mutual maximum of P (the paper's rule); `filter_threshold` (default 0)
+can also demand P_ij above a value: LightGlue's 0.1 assumes peaked assignments, while edge pixels one pixel apart along
+a line share nearly the same descriptor and spread P over several neighbours, so pose solvers get scores instead.
+The fov filter masks 3D points after P is computed, so inference sees the same P as training.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from i2pbench.api import Component, Features, Frame, Keypoints2D, Keypoints3D, LearnedComponent, Matcher, Matches
+from i2pbench.correspondence import ground_truth_matches
+
+from .loss import edgeregnet_loss, log_assignment
+
+
+def mutual_matches(log_p: torch.Tensor, threshold: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """pairs whose log_p [M2 x M3] is the maximum of its row and its column and exp(log_p) > threshold.
+
+    -> index2d [K], index3d [K], P [K].
+    """
+    if log_p.numel() == 0:
+        empty = torch.zeros(0, dtype=torch.long, device=log_p.device)
+        return empty, empty, log_p.new_zeros(0)
+    best3d = log_p.argmax(1)  # [M2]
+    best2d = log_p.argmax(0)  # [M3]
+    index2d = torch.arange(log_p.shape[0], device=log_p.device)
+    mutual = best2d[best3d] == index2d
+    score = log_p[index2d, best3d].exp()
+    keep = mutual & (score > threshold) & torch.isfinite(log_p[index2d, best3d])
+    return index2d[keep], best3d[keep], score[keep]
+
+
+def descriptor_dim_mismatch(component: Component, upstream: Mapping[str, Component]) -> str | None:
+    """why component's descriptor_dim disagrees with an upstream encoder's or exchanger's, or None."""
+    dim = component.conf["descriptor_dim"]
+    for kind in ("encoder2d", "encoder3d", "exchanger"):
+        other = upstream.get(kind)
+        theirs = getattr(other, "conf", {}).get("descriptor_dim") if other is not None else None
+        if theirs is not None and theirs != dim:
+            return f"{component.label} has descriptor_dim {dim} but {other.label} has descriptor_dim {theirs}"
+    return None
+
+
+def to_device(array: np.ndarray, device: torch.device) -> torch.Tensor:
+    return torch.from_numpy(np.asarray(array)).to(device)
+
+
+class LightGlueMatcher(LearnedComponent, Matcher):
+    """Mutual maxima of the soft partial assignment P between 2D and 3D edge descriptors."""
+
+    name = "lightglue"
+    default_conf: dict[str, Any] = {
+        "descriptor_dim": 256,  # D, must equal the encoders' (and the exchanger's)
+        "filter_threshold": 0.0,  # a match also needs P_ij above this (LightGlue uses 0.1)
+        "fov_filter": True,  # at inference, 3D points whose fov score is below 0.5 cannot match
+        "eps_c": None,  # px, true-match radius for the loss; None: the frame's match_radius_px (KITTI 3, nuScenes 5)
+        "weights": {"fov": 1.0, "sigma": 1.0, "P": 1.0},  # lambda_fov, lambda_sigma, lambda_P of eq. (15)
+    }
+
+    def __init__(self, conf: dict[str, Any] | None = None) -> None:
+        super().__init__(conf)
+        dim = self.conf["descriptor_dim"]
+        self.proj2d, self.proj3d = nn.Linear(dim, dim), nn.Linear(dim, dim)
+        self.matchability2d, self.matchability3d = nn.Linear(dim, 1), nn.Linear(dim, 1)
+        self.fov = nn.Linear(dim, 1)  # the paper's 1D convolution over points, kernel 1
+
+    def check_compatible(self, upstream: Mapping[str, Component]) -> str | None:
+        return descriptor_dim_mismatch(self, upstream)
+
+    def forward(self, d2: torch.Tensor, d3: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """d2 [M2 x D], d3 [M3 x D] -> log P [M2 x M3], matchability logits ([M2], [M3]), fov logits [M3]."""
+        d2, d3 = d2.float(), d3.float()
+        sim = self.proj2d(d2) @ self.proj3d(d3).t() / self.conf["descriptor_dim"] ** 0.5
+        z2d, z3d = self.matchability2d(d2)[:, 0], self.matchability3d(d3)[:, 0]
+        return log_assignment(sim, z2d, z3d), z2d, z3d, self.fov(d3)[:, 0]
+
+    def _run(self, features: Features) -> tuple[torch.Tensor, ...]:
+        if features.desc2d is None or features.desc3d is None:
+            raise ValueError(f"{self.label} needs descriptors on both sides")
+        device = next(self.parameters()).device
+        return nn.Module.__call__(self, features.desc2d.to(device), features.desc3d.to(device))
+
+    @torch.no_grad()
+    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Matches:
+        log_p, _, _, z_fov = self._run(features)
+        if self.conf["fov_filter"]:
+            log_p = log_p.masked_fill((z_fov < 0)[None, :], float("-inf"))  # sigmoid < 0.5
+        i2d, i3d, score = mutual_matches(log_p, self.conf["filter_threshold"])
+        return Matches(i2d.cpu().numpy(), i3d.cpu().numpy(), score.float().cpu().numpy())
+
+    def loss(
+        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features
+    ) -> tuple[torch.Tensor, dict[str, float]]:
+        """eq. (15) on this frame; frame must carry T_gt."""
+        log_p, z2d, z3d, z_fov = self._run(features)
+        gt = ground_truth_matches(frame, kp2d, kp3d, radius_px=self.conf["eps_c"])
+        dev, w = log_p.device, {**self.default_conf["weights"], **self.conf["weights"]}
+        return edgeregnet_loss(
+            log_p,
+            z2d,
+            z3d,
+            z_fov,
+            pairs=(to_device(gt.index2d, dev), to_device(gt.index3d, dev)),
+            matchable=(to_device(gt.matchable2d, dev), to_device(gt.matchable3d, dev)),
+            in_fov=to_device(gt.in_fov3d, dev),
+            weights=(w["fov"], w["sigma"], w["P"]),
+        )

@@ -1,0 +1,85 @@
+"""SuperPoint-style VGG encoder: a stride-8 descriptor map sampled bilinearly at the 2D edge pixels.
+
+Coordinate mapping: pixel centres sit at integer (u, v) (the convention of LSD and of `Keypoints2D`). Descriptor cell
+(i, j) pools pixels [8j, 8j + 8) x [8i, 8i + 8), so its centre is at u = 8j + 3.5, v = 8i + 3.5. A pixel therefore
+lies at cell coordinate x = (u - 3.5) / 8, which `grid_sample(align_corners=True)` reads at 2x / (Wc - 1) - 1;
+pixels beyond the outer cell centres take the border cell's value.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from i2pbench.api import Encoder2D, Frame, Keypoints2D, LearnedComponent
+
+GREY_WEIGHTS = (0.299, 0.587, 0.114)  # ITU-R BT.601, as cv2.cvtColor(RGB2GRAY)
+
+
+def to_grey(image: np.ndarray, device: torch.device) -> torch.Tensor:
+    """rgb uint8 [H x W x 3] -> grey float [1 x 1 x H x W] in [0, 1]."""
+    rgb = torch.from_numpy(np.ascontiguousarray(image)).to(device=device, dtype=torch.float32)
+    grey = rgb @ torch.tensor(GREY_WEIGHTS, device=device) / 255.0
+    return grey[None, None]
+
+
+def pixel_to_grid(uv: torch.Tensor, size: tuple[int, int], stride: int) -> torch.Tensor:
+    """pixel coordinates [M x 2] -> grid_sample coordinates [M x 2] on a (Wc, Hc) map (align_corners=True)."""
+    cells = (uv - (stride - 1) / 2) / stride
+    extent = torch.tensor([max(size[0] - 1, 1), max(size[1] - 1, 1)], device=uv.device, dtype=uv.dtype)
+    return cells / extent * 2 - 1
+
+
+def sample_descriptors(fmap: torch.Tensor, uv: torch.Tensor, stride: int) -> torch.Tensor:
+    """bilinear lookup of fmap [1 x D x Hc x Wc] at pixels uv [M x 2] -> [M x D]."""
+    grid = pixel_to_grid(uv, (fmap.shape[-1], fmap.shape[-2]), stride)
+    out = F.grid_sample(fmap, grid[None, None], mode="bilinear", padding_mode="border", align_corners=True)
+    return out[0, :, 0].t()
+
+
+def conv(cin: int, cout: int, kernel: int = 3) -> nn.Conv2d:
+    return nn.Conv2d(cin, cout, kernel, padding=kernel // 2)
+
+
+class SuperPointEncoder(LearnedComponent, Encoder2D):
+    """Descriptors of image edge pixels from a VGG backbone on the grayscale image."""
+
+    name = "superpoint-cnn"
+    default_conf: dict[str, Any] = {
+        "descriptor_dim": 256,  # D, the output width
+        "channels": (64, 64, 128, 128),  # widths of the four VGG stages (pooling after the first three: stride 8)
+        "head_channels": 256,  # the 3x3 conv of the descriptor head, before the 1x1 conv to D
+        "normalize_image": True,  # zero mean / unit std per image (robust to exposure); False: grey in [0, 1]
+        "normalize_descriptors": True,  # L2-normalise sampled descriptors, as SuperPoint and SuperGlue's input
+    }
+    stride = 8
+
+    def __init__(self, conf: dict[str, Any] | None = None) -> None:
+        super().__init__(conf)
+        c1, c2, c3, c4 = self.conf["channels"]
+        layers: list[nn.Module] = []
+        cin = 1
+        for i, c in enumerate((c1, c2, c3, c4)):
+            layers += [conv(cin, c), nn.ReLU(inplace=True), conv(c, c), nn.ReLU(inplace=True)]
+            layers += [nn.MaxPool2d(2, 2)] if i < 3 else []
+            cin = c
+        self.backbone = nn.Sequential(*layers)
+        head = self.conf["head_channels"]
+        self.head = nn.Sequential(conv(c4, head), nn.ReLU(inplace=True), conv(head, self.conf["descriptor_dim"], 1))
+
+    def __call__(self, frame: Frame, kp2d: Keypoints2D) -> torch.Tensor:
+        device = next(self.parameters()).device
+        uv = torch.from_numpy(np.asarray(kp2d.uv, np.float32)).to(device)
+        return nn.Module.__call__(self, to_grey(frame.image, device), uv)
+
+    def forward(self, grey: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+        """grey [1 x 1 x H x W] in [0, 1], uv [M x 2] pixels -> descriptors [M x D]."""
+        if self.conf["normalize_image"]:
+            grey = (grey - grey.mean()) / grey.std().clamp(min=1e-3)
+        fmap = self.head(self.backbone(grey))
+        desc = sample_descriptors(fmap, uv, self.stride)
+        return F.normalize(desc, dim=-1) if self.conf["normalize_descriptors"] else desc
