@@ -9,7 +9,7 @@ from collections.abc import Sequence
 
 from .errors import I2PBenchError
 
-COMMANDS = ("plugins", "run")
+COMMANDS = ("plugins", "run", "train")
 
 
 def build_parser() -> argparse.ArgumentParser:

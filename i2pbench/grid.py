@@ -11,7 +11,7 @@ import yaml
 
 from .components import STAGE_ORDER
 from .errors import PluginError
-from .pipeline import Combination
+from .pipeline import NONE, Combination
 from .plugins import Registry
 
 
@@ -42,17 +42,40 @@ def expand(
     choices: Mapping[str, Sequence[str]],
     confs: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> list[Combination]:
-    """The product of the per-stage choices, applied over each base combination (duplicates dropped)."""
+    """The product of the per-stage choices, applied over each base combination (duplicates dropped).
+
+    A base may carry "confs" ({kind: {key: value}}): config a preset pins, e.g. a smaller width its weights used;
+    a base conf applies only while its stage keeps the base's component, and `confs` overrides it.
+    """
     kinds = [k for k in STAGE_ORDER if choices.get(k)]
     seen, out = set(), []
     for base in bases:
+        base = dict(base)
+        base_confs = base.pop("confs", {})
         for values in itertools.product(*(choices[k] for k in kinds)):
             names = {**base, **dict(zip(kinds, values, strict=True))}
-            combination = Combination(names, {k: dict(v) for k, v in (confs or {}).items()})
+            combination = Combination(names, _merge_confs(names, base, base_confs, confs or {}))
             if combination.key() not in seen:
                 seen.add(combination.key())
                 out.append(combination)
     return out
+
+
+def _merge_confs(
+    names: Mapping[str, str],
+    base: Mapping[str, str],
+    base_confs: Mapping[str, Mapping[str, Any]],
+    overrides: Mapping[str, Mapping[str, Any]],
+) -> dict[str, dict[str, Any]]:
+    merged = {}
+    for kind in STAGE_ORDER:
+        if names.get(kind, NONE) == NONE:
+            continue
+        pinned = base_confs.get(kind, {}) if names[kind] == base.get(kind) else {}
+        conf = {**pinned, **overrides.get(kind, {})}
+        if conf:
+            merged[kind] = conf
+    return merged
 
 
 def load_grid_file(path: str | Path) -> tuple[list[dict[str, str]], dict[str, list[str]]]:
