@@ -119,5 +119,5 @@ class RandomExtractor2D(Extractor2D):
 
     def __call__(self, frame: Frame) -> Keypoints2D:
         width, height = frame.image_size
-        rows, cols = np.divmod(np.arange(width * height, dtype=np.int64), width)
-        return pixels_to_keypoints(rows, cols, frame, self.conf)
+        rows, cols = np.divmod(cap(width * height, self.conf["max_keypoints"], self.conf["seed"], frame), width)
+        return Keypoints2D(uv=np.stack([cols, rows], axis=1).astype(np.float32).reshape(-1, 2))
