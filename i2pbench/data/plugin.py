@@ -2,8 +2,10 @@
 
 from ..plugins import hookimpl
 from .kitti import KittiOdometry
+from .nuscenes import NuScenes
 
 
 @hookimpl
 def register_datasets(register) -> None:
     register(KittiOdometry)
+    register(NuScenes)

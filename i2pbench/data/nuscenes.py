@@ -1,0 +1,201 @@
+"""nuScenes through the official devkit: LIDAR_TOP keyframes x chosen cameras, time-aware LiDAR -> camera extrinsics.
+
+The devkit is imported only when a nuScenes dataset is used, so `i2pbench.data.plugin` imports fast without it.
+Tables come from `nuscenes.nuscenes.NuScenes`, scene lists from `nuscenes.utils.splits.create_splits_scenes`. Points
+are read from the .pcd.bin directly because `LidarPointCloud.from_file` drops the fifth column, the ring index.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..errors import DataError
+from ..geometry import invert
+from ..types import SensorFrame
+from .base import Dataset
+from .kitti import read_image
+
+CAMERAS = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_FRONT_LEFT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_BACK_RIGHT")
+VERSIONS = ("v1.0-trainval", "v1.0-mini", "v1.0-test")
+# split -> (devkit scene lists whose union it is, the version that holds those scenes)
+SPLITS: dict[str, tuple[tuple[str, ...], str]] = {
+    "train": (("train", "val"), "v1.0-trainval"),  # the 850 annotated scenes the paper trains on
+    "val": (("val",), "v1.0-trainval"),
+    "test": (("test",), "v1.0-test"),  # the 150 scenes the paper tests on
+    "mini_train": (("mini_train",), "v1.0-mini"),
+    "mini_val": (("mini_val",), "v1.0-mini"),
+}
+DEVKIT_INSTALL = (
+    "pip install --no-deps nuscenes-devkit pyquaternion matplotlib shapely scikit-learn pycocotools descartes fire "
+    "cachetools tqdm Pillow"
+)
+
+
+def record_matrix(record: dict[str, Any]) -> np.ndarray:
+    """4x4 pose of a calibrated_sensor or ego_pose record (rotation is a w, x, y, z quaternion)."""
+    w, x, y, z = record["rotation"]
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat([x, y, z, w]).as_matrix()
+    T[:3, 3] = record["translation"]
+    return T
+
+
+def lidar_to_camera(
+    lidar_sensor: dict[str, Any], lidar_pose: dict[str, Any], cam_sensor: dict[str, Any], cam_pose: dict[str, Any]
+) -> np.ndarray:
+    """T_cam_lidar through lidar -> ego(t_lidar) -> global -> ego(t_cam) -> camera.
+
+    The car moves up to ~1 m between the LiDAR and a camera timestamp, so skipping the two ego poses is not an option.
+    """
+    ego_l_from_lidar = record_matrix(lidar_sensor)
+    global_from_ego_l = record_matrix(lidar_pose)
+    global_from_ego_c = record_matrix(cam_pose)
+    ego_c_from_cam = record_matrix(cam_sensor)
+    return invert(ego_c_from_cam) @ invert(global_from_ego_c) @ global_from_ego_l @ ego_l_from_lidar
+
+
+def read_sweep(path: Path, ego_radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """([N x 4] float32 x, y, z, intensity in [0, 1]; [N] int16 ring) of a LIDAR_TOP .pcd.bin, ego returns removed.
+
+    Ego returns: measured on scene-0916, 20% of a sweep hits the car's own roof within 1.2 m (horizontal) of the
+    sensor, plus no-return placeholders at the origin; nothing else lies that close because the roof is in the way.
+    A vertical cylinder of `ego_radius_m` round the sensor removes them (the devkit's `remove_close` uses a 1 m
+    square, which misses the roof's rear edge at 1.0-1.2 m). The 0.4% of returns from the bonnet, 1.5-2.5 m ahead and
+    0.85 m down, are kept: they project below every camera's image, so they never become matches.
+    """
+    if not path.is_file():
+        raise DataError(f"{path}: LiDAR sweep not found")
+    size = path.stat().st_size
+    if size % 20 or size == 0:
+        raise DataError(f"{path}: {size} bytes is not a positive multiple of 20 (float32 x, y, z, intensity, ring)")
+    raw = np.fromfile(path, dtype=np.float32).reshape(-1, 5)
+    if not np.isfinite(raw).all():
+        raise DataError(f"{path}: {int((~np.isfinite(raw).all(axis=1)).sum())} points hold NaN or inf")
+    raw = raw[np.hypot(raw[:, 0], raw[:, 1]) >= ego_radius_m]
+    points = raw[:, :4].copy()
+    points[:, 3] = np.clip(points[:, 3] / 255.0, 0.0, 1.0)
+    return points, raw[:, 4].astype(np.int16)
+
+
+def _devkit():
+    try:
+        from nuscenes.nuscenes import NuScenes as DevkitNuScenes
+        from nuscenes.utils.splits import create_splits_scenes
+    except ImportError as exc:
+        raise DataError(
+            f"dataset 'nuscenes' needs the nuScenes devkit ({exc}); install it with: {DEVKIT_INSTALL}"
+        ) from exc
+    return DevkitNuScenes, create_splits_scenes
+
+
+@lru_cache(maxsize=2)
+def open_devkit(dataroot: str, version: str) -> Any:
+    """The devkit's table index for one dataroot and version, built once per process (trainval takes ~30 s)."""
+    if not (Path(dataroot) / version).is_dir():
+        raise DataError(f"{Path(dataroot) / version} not found (the nuScenes dataroot must hold the {version} tables)")
+    devkit_class, _ = _devkit()
+    try:
+        return devkit_class(version=version, dataroot=dataroot, verbose=False)
+    except (AssertionError, OSError, KeyError, IndexError, ValueError) as exc:
+        raise DataError(f"{Path(dataroot) / version}: the devkit cannot load these tables: {exc!r}") from exc
+
+
+class NuScenes(Dataset):
+    """nuScenes keyframes: one frame per (LIDAR_TOP sample, camera); id "<sample_token>/<CAM>"."""
+
+    name = "nuscenes"
+    splits = tuple(SPLITS)
+    default_conf: ClassVar[dict[str, Any]] = {
+        "root": None,  # the devkit's dataroot (holds v1.0-*/, samples/); None reads I2PBENCH_NUSCENES_ROOT
+        "version": "v1.0-trainval",  # or v1.0-mini (mini_* splits), v1.0-test (test split)
+        "cameras": ["CAM_FRONT"],  # any of the six cameras
+        "exclude_night": False,  # drop scenes whose description mentions night
+        "ego_radius_m": 1.2,  # drop returns within this horizontal distance of the LiDAR (the car's own roof)
+    }
+    match_radius_px = 5.0
+
+    def __init__(self, split: str, conf: dict[str, Any] | None = None) -> None:
+        super().__init__(split, conf)
+        version, cameras = self.conf["version"], list(self.conf["cameras"])
+        if version not in VERSIONS:
+            raise DataError(f"dataset 'nuscenes': unknown version {version!r}; choose one of {list(VERSIONS)}")
+        if SPLITS[split][1] != version:
+            raise DataError(f"dataset 'nuscenes': split {split!r} needs version {SPLITS[split][1]!r}, not {version!r}")
+        unknown = sorted(set(cameras) - set(CAMERAS))
+        if unknown or not cameras:
+            raise DataError(f"dataset 'nuscenes': unknown cameras {unknown or cameras}; choose from {list(CAMERAS)}")
+        self.cameras = cameras
+        self._ids: list[str] | None = None
+
+    @property
+    def devkit(self) -> Any:
+        return open_devkit(str(self.root), self.conf["version"])
+
+    def scene_names(self) -> set[str]:
+        """Names of this split's scenes (the devkit's lists), whether or not present in the tables."""
+        _, create_splits_scenes = _devkit()
+        lists = create_splits_scenes()
+        return {name for part in SPLITS[self.split][0] for name in lists[part]}
+
+    def _keeps(self, scene: dict[str, Any], names: set[str]) -> bool:
+        night = "night" in scene["description"].lower()
+        return scene["name"] in names and not (night and self.conf["exclude_night"])
+
+    def frame_ids(self) -> list[str]:
+        if self._ids is None:
+            nusc, names = self.devkit, self.scene_names()
+            scenes = {s["token"] for s in nusc.scene if self._keeps(s, names)}
+            samples = [s for s in nusc.sample if s["scene_token"] in scenes and "LIDAR_TOP" in s["data"]]
+            ids = sorted(f"{s['token']}/{cam}" for s in samples for cam in self.cameras if cam in s["data"])
+            if not ids:
+                raise DataError(f"dataset 'nuscenes': no frames for split {self.split!r} in {self.root / nusc.version}")
+            self._ids = ids
+        return list(self._ids)
+
+    def _sample_data(self, frame_id: str) -> tuple[dict[str, Any], dict[str, Any]]:
+        token, _, camera = frame_id.partition("/")
+        nusc = self.devkit
+        try:
+            data = nusc.get("sample", token)["data"]
+            return nusc.get("sample_data", data["LIDAR_TOP"]), nusc.get("sample_data", data[camera])
+        except KeyError as exc:
+            raise DataError(f"dataset 'nuscenes': no frame {frame_id!r} in {self.root / nusc.version} ({exc})") from exc
+
+    def calibration(self, frame_id: str) -> tuple[np.ndarray, np.ndarray]:
+        """(K [3 x 3], T_cam_lidar [4 x 4]) of one frame."""
+        lidar, cam = self._sample_data(frame_id)
+        get = self.devkit.get
+        cam_sensor = get("calibrated_sensor", cam["calibrated_sensor_token"])
+        T = lidar_to_camera(
+            get("calibrated_sensor", lidar["calibrated_sensor_token"]),
+            get("ego_pose", lidar["ego_pose_token"]),
+            cam_sensor,
+            get("ego_pose", cam["ego_pose_token"]),
+        )
+        return np.asarray(cam_sensor["camera_intrinsic"], dtype=np.float64), T
+
+    def load(self, frame_id: str) -> SensorFrame:
+        lidar, cam = self._sample_data(frame_id)
+        sweep = self.root / lidar["filename"]
+        points, ring = read_sweep(sweep, float(self.conf["ego_radius_m"]))
+        K, T = self.calibration(frame_id)
+        return SensorFrame(
+            dataset=self.name,
+            frame_id=frame_id,
+            image=read_image(self.root / cam["filename"]),
+            points=points,
+            ring=ring,
+            K=K,
+            T_cam_lidar=T,
+            match_radius_px=self.match_radius_px,
+            source=str(sweep),
+        )
+
+    def identity(self) -> dict[str, Any]:
+        keys = ("version", "cameras", "exclude_night", "ego_radius_m")
+        return {**super().identity(), **{k: self.conf[k] for k in keys}}
