@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Installs i2pbench and everything it needs into .venv, from the project's own files.
+# torch==2.13.0 goes first so pip keeps the CPU wheel (a bare `torch` would pull a multi-GB CUDA build).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+if ! ldconfig -p 2>/dev/null | grep -q libusb-1.0.so.0; then  # open3d imports only with libusb present
+    if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
+    $SUDO apt-get update -qq && $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
+fi
+
+PYTHON=${PYTHON:-python3}
+[ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
+.venv/bin/python -m pip install -q --upgrade pip
+.venv/bin/python -m pip install -q "torch==2.13.0"
+.venv/bin/python -m pip install -q -e ".[dev]"
+# nuscenes-devkit pins numpy<2 and opencv-python-headless, which would clash with numpy 2 and the contrib OpenCV:
+# install it without its pins, plus the runtime dependencies it really uses.
+.venv/bin/python -m pip install -q --no-deps "nuscenes-devkit==1.2.0"
+.venv/bin/python -m pip install -q -r requirements-nuscenes.txt
