@@ -169,7 +169,7 @@ class Trainer:
                 report(self.step, terms)
             if self.step % c.validate_every == 0 or self.step == c.steps:
                 self.validation = self.validate()
-                if report:
+                if report and self.validation:
                     report(self.step, {f"val_{k}": v for k, v in self.validation.items()})
             if self.step % c.checkpoint_every == 0 or self.step == c.steps:
                 self.save(meta)

@@ -4,6 +4,7 @@ import numpy as np
 import torch
 
 from i2pbench.api import (
+    FEATURES2D,
     GROUND_TRUTH,
     KEYPOINTS2D,
     KEYPOINTS3D,
@@ -14,6 +15,7 @@ from i2pbench.api import (
     Extractor3D,
     Keypoints2D,
     Keypoints3D,
+    LearnedComponent,
     Matcher,
     Matches,
     PoseEstimate,
@@ -106,12 +108,14 @@ def register_extractors_3d(register):
 @hookimpl
 def register_encoders_2d(register):
     register(ConstantEncoder)
+    register(LinearEncoder)
 
 
 @hookimpl
 def register_matchers(register):
     register(TruthMatcher)
     register(PeekingMatcher)
+    register(RegressionMatcher)
 
 
 @hookimpl
@@ -146,3 +150,31 @@ class ToyDataset(Dataset):
 @hookimpl
 def register_datasets(register):
     register(ToyDataset)
+
+
+class LinearEncoder(LearnedComponent, Encoder2D):
+    """A learned toy encoder: one linear layer on pixel coordinates."""
+
+    name = "linear"
+    default_conf = {"dim": 4}
+
+    def __init__(self, conf=None):
+        super().__init__(conf)
+        self.layer = torch.nn.Linear(2, self.conf["dim"])
+
+    def __call__(self, frame, kp2d):
+        return self.layer(torch.from_numpy(kp2d.uv))
+
+
+class RegressionMatcher(Matcher):
+    """A trainable toy matcher: its loss pulls every 2D descriptor towards 1."""
+
+    name = "regress"
+    consumes = frozenset({KEYPOINTS2D, KEYPOINTS3D, FEATURES2D})
+
+    def __call__(self, frame, kp2d, kp3d, features):
+        return Matches(np.array([0]), np.array([0]), np.array([1.0], np.float32))
+
+    def loss(self, frame, kp2d, kp3d, features):
+        loss = ((features.desc2d - 1.0) ** 2).mean()
+        return loss, {"mse": float(loss)}

@@ -1,0 +1,131 @@
+import numpy as np
+import pytest
+import torch
+import toy_plugin
+
+from i2pbench.errors import PluginError, WeightsError
+from i2pbench.pipeline import Combination, Pipeline
+from i2pbench.plugins import build_registry
+from i2pbench.protocol import Protocol
+from i2pbench.runs.runner import prepare, run_grid
+from i2pbench.runs.store import ResultsStore
+from i2pbench.training import TrainConfig, Trainer, training_meta
+from i2pbench.weights import apply_checkpoint, load_checkpoint, save_checkpoint, select_checkpoint
+
+LEARNED = {
+    "extractor2d": "grid",
+    "extractor3d": "first",
+    "encoder2d": "linear",
+    "matcher": "regress",
+    "solver": "truth",
+}
+
+
+class Clean(toy_plugin.ToyDataset):
+    def frame_ids(self):
+        return ["a", "c"]
+
+
+@pytest.fixture
+def registry(monkeypatch):
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    return build_registry((toy_plugin,))
+
+
+def _pipeline(registry, **confs):
+    return Pipeline.build(registry, Combination(LEARNED, confs))
+
+
+def _trainer(registry, out, steps):
+    torch.manual_seed(0)
+    pipeline = _pipeline(registry)
+    config = TrainConfig(steps=steps, lr=0.05, checkpoint_every=1, validate_every=1000, seed=1)
+    return Trainer(pipeline, Clean("test"), None, out, config)
+
+
+def test_checkpoint_round_trips_with_its_metadata(registry, tmp_path):
+    pipeline = _pipeline(registry)
+    path = save_checkpoint(tmp_path / "toy.pt", pipeline, steps=12, trained_on={"dataset": "toy", "split": "test"})
+    checkpoint = load_checkpoint(path)
+    assert checkpoint.meta["steps"] == 12
+    assert checkpoint.meta["stages"]["encoder2d"] == {"name": "linear", "conf": {"dim": 4}}
+    assert checkpoint.meta["size_mb"] == pytest.approx(12 * 4 / 2**20, abs=1e-3)  # 2x4 weights + 4 biases
+    assert checkpoint.trained_on == "toy/test, 12 steps"
+    fresh = _pipeline(registry)
+    apply_checkpoint(fresh, checkpoint)
+    for a, b in zip(fresh.stages["encoder2d"].parameters(), pipeline.stages["encoder2d"].parameters(), strict=True):
+        assert torch.equal(a, b)
+    assert fresh.weights_identity == checkpoint.identity and checkpoint.identity.startswith("toy@")
+
+
+def test_a_checkpoint_for_another_config_is_refused_with_a_clear_message(registry, tmp_path):
+    path = save_checkpoint(tmp_path / "toy.pt", _pipeline(registry), steps=1)
+    with pytest.raises(WeightsError, match=r"encoder2d: the pipeline has 'linear' \{'dim': 8\}.*trained with 'linear'"):
+        apply_checkpoint(_pipeline(registry, encoder2d={"dim": 8}), load_checkpoint(path))
+
+
+def test_unreadable_checkpoint_names_the_file(tmp_path):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(WeightsError, match="bad.pt"):
+        load_checkpoint(bad)
+
+
+def test_rows_say_untrained_or_which_checkpoint(registry, tmp_path):
+    dataset = Clean("test")
+    untrained = run_grid(registry, [Combination(LEARNED)], dataset, Protocol(), ResultsStore(tmp_path / "a"))
+    assert set(untrained["weights"]) == {"untrained"}
+    path = save_checkpoint(tmp_path / "toy.pt", _pipeline(registry), steps=3, trained_on={"dataset": "toy"})
+    trained = run_grid(
+        registry, [Combination(LEARNED)], dataset, Protocol(), ResultsStore(tmp_path / "b"), weights=str(path)
+    )
+    assert set(trained["weights"]) == {load_checkpoint(path).identity}
+    classic = run_grid(registry, [Combination(toy_plugin_base())], dataset, Protocol(), ResultsStore(tmp_path / "c"))
+    assert set(classic["weights"]) == {"none"}
+
+
+def toy_plugin_base():
+    return {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
+
+
+def test_auto_weights_pick_a_shipped_checkpoint_only_when_every_stage_fits(registry, tmp_path):
+    path = str(save_checkpoint(tmp_path / "toy.pt", _pipeline(registry), steps=1))
+    assert select_checkpoint(_pipeline(registry), "auto", [path]) is not None
+    assert select_checkpoint(_pipeline(registry, encoder2d={"dim": 8}), "auto", [path]) is None
+    assert select_checkpoint(_pipeline(registry), "untrained", [path]) is None
+    registry.weights.append((path, "test"))
+    assert prepare(registry, [Combination(LEARNED)])[0].weights.startswith("toy@")
+
+
+def test_training_drives_the_loss_down_and_checkpoints(registry, tmp_path):
+    trainer = _trainer(registry, tmp_path / "t.pt", steps=30)
+    losses = []
+    trainer.run(training_meta(Clean("test"), trainer.config), lambda step, terms: losses.append(terms["loss"]))
+    assert losses[-1] < 0.2 * losses[0]
+    checkpoint = load_checkpoint(tmp_path / "t.pt")
+    assert checkpoint.meta["steps"] == 30 and checkpoint.meta["trained_on"]["dataset"] == "toy"
+
+
+def test_resumed_training_equals_uninterrupted_training(registry, tmp_path):
+    straight = _trainer(registry, tmp_path / "a.pt", steps=6)
+    straight.run({})
+    first = _trainer(registry, tmp_path / "b.pt", steps=3)
+    first.run({})
+    resumed = _trainer(registry, tmp_path / "b.pt", steps=6)
+    assert resumed.resume() and resumed.step == 3
+    resumed.run({})
+    a = load_checkpoint(tmp_path / "a.pt").state["encoder2d"]
+    b = load_checkpoint(tmp_path / "b.pt").state["encoder2d"]
+    assert all(torch.allclose(a[k], b[k]) for k in a)
+
+
+def test_training_needs_a_trainable_matcher(registry, tmp_path):
+    pipeline = Pipeline.build(registry, Combination({**LEARNED, "matcher": "truth"}))
+    with pytest.raises(PluginError, match="matcher 'truth' has no training loss"):
+        Trainer(pipeline, Clean("test"), None, tmp_path / "x.pt", TrainConfig())
+
+
+def test_training_frames_and_transforms_depend_only_on_seed_and_step(registry, tmp_path):
+    a, b = _trainer(registry, tmp_path / "a.pt", 1), _trainer(registry, tmp_path / "b.pt", 1)
+    assert np.array_equal(a.sample(5).T_gt, b.sample(5).T_gt)
+    assert not np.array_equal(a.sample(5).T_gt, a.sample(6).T_gt)
