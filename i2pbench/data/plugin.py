@@ -3,9 +3,11 @@
 from ..plugins import hookimpl
 from .kitti import KittiOdometry
 from .nuscenes import NuScenes
+from .synthetic import SyntheticStreets
 
 
 @hookimpl
 def register_datasets(register) -> None:
     register(KittiOdometry)
     register(NuScenes)
+    register(SyntheticStreets)

@@ -1,0 +1,116 @@
+"""The embedded synthetic dataset: procedural street scenes in the KITTI Odometry layout, made on first use.
+
+Splits are sequences: train = "00", val = "01", test = "02". Each split is generated the first time it is asked
+for (into a temporary folder renamed into place, so an interrupted or concurrent generation never leaves a partial
+sequence) and read back through the KITTI reader, so the synthetic frames exercise the same code as real ones.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any, ClassVar
+
+from ...errors import DataError
+from ...types import SensorFrame
+from ..base import Dataset
+from ..kitti import read_frame, sequence_stems
+from .version import GENERATOR_VERSION
+
+SPLIT_SEQUENCES = {"train": "00", "val": "01", "test": "02"}
+MARKER = "synthetic.json"
+
+
+def default_root(seed: int) -> Path:
+    return Path("~/.cache/i2pbench").expanduser() / f"synthetic-v{GENERATOR_VERSION}-seed{seed}"
+
+
+def marker(seed: int, sequence: str, n_frames: int) -> dict[str, Any]:
+    return {"generator_version": GENERATOR_VERSION, "seed": int(seed), "sequence": sequence, "frames": int(n_frames)}
+
+
+def ensure_sequence(root: Path, sequence: str, n_frames: int, seed: int, workers: int | None = None) -> Path:
+    """The sequence folder, generated unless a complete one with the same marker is already there."""
+    target = Path(root) / "sequences" / sequence
+    wanted = marker(seed, sequence, n_frames)
+    if (target / MARKER).is_file():
+        if json.loads((target / MARKER).read_text()) == wanted:
+            return target
+        _retire(target)
+    elif target.exists():
+        raise DataError(f"{target} exists but was not made by the synthetic generator (no {MARKER}); not touching it")
+    from .kitti_writer import write_sequence  # the ray caster (open3d) loads only when frames are made
+
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{sequence}-", dir=target.parent)) / sequence
+    write_sequence(tmp, n_frames, seed, workers)
+    (tmp / MARKER).write_text(json.dumps(wanted, indent=1) + "\n")
+    try:
+        os.rename(tmp, target)
+    except OSError:  # another process finished first; keep its copy if it matches
+        if not (target / MARKER).is_file() or json.loads((target / MARKER).read_text()) != wanted:
+            raise
+    shutil.rmtree(tmp.parent, ignore_errors=True)
+    return target
+
+
+def _retire(target: Path) -> None:
+    """Move an outdated sequence aside before deleting it, so readers never see it half-deleted."""
+    trash = Path(tempfile.mkdtemp(prefix=".old-", dir=target.parent))
+    os.rename(target, trash / target.name)
+    shutil.rmtree(trash, ignore_errors=True)
+
+
+def generate(root: Path | str | None = None, n_train: int = 400, n_val: int = 20, n_test: int = 40, seed: int = 0,
+             workers: int | None = None) -> Path:
+    """Generate (or validate) all three splits under root (default ~/.cache/i2pbench/synthetic-v1-seed{seed})."""
+    root = Path(root).expanduser() if root else default_root(seed)
+    for split, n in (("train", n_train), ("val", n_val), ("test", n_test)):
+        ensure_sequence(root, SPLIT_SEQUENCES[split], n, seed, workers)
+    return root
+
+
+class SyntheticStreets(Dataset):
+    """Procedural streets seen by a KITTI-like rig; the default dataset, and the one EdgeRegNet trains on."""
+
+    name = "synthetic"
+    splits = ("train", "val", "test")
+    default_conf: ClassVar[dict[str, Any]] = {
+        "root": None,  # None: ~/.cache/i2pbench/synthetic-v{version}-seed{seed} (or I2PBENCH_SYNTHETIC_ROOT)
+        "seed": 0,  # scene seed; every frame is a function of (seed, sequence, index)
+        "frames": {"train": 400, "val": 20, "test": 40},  # frames per split (missing keys keep the defaults)
+        "workers": None,  # processes for generation; None = all cores
+    }
+    match_radius_px = 3.0
+
+    @property
+    def root(self) -> Path:
+        root = self.conf.get("root") or os.environ.get("I2PBENCH_SYNTHETIC_ROOT")
+        return Path(root).expanduser() if root else default_root(int(self.conf["seed"]))
+
+    @property
+    def n_frames(self) -> int:
+        frames = {**self.default_conf["frames"], **(self.conf["frames"] or {})}
+        return int(frames[self.split])
+
+    def sequence_dir(self) -> Path:
+        return ensure_sequence(self.root, SPLIT_SEQUENCES[self.split], self.n_frames, int(self.conf["seed"]),
+                               self.conf["workers"])
+
+    def frame_ids(self) -> list[str]:
+        seq = self.sequence_dir()
+        return [f"{seq.name}/{stem}" for stem in sequence_stems(seq)]
+
+    def load(self, frame_id: str) -> SensorFrame:
+        sequence, _, stem = frame_id.partition("/")
+        if sequence != SPLIT_SEQUENCES[self.split] or not stem:
+            raise DataError(f"dataset 'synthetic' {self.split}: frame id {frame_id!r} is not of the form "
+                            f"'{SPLIT_SEQUENCES[self.split]}/NNNNNN'")
+        return read_frame(self.sequence_dir(), stem, 2, self.name, self.match_radius_px)
+
+    def identity(self) -> dict[str, Any]:
+        return {**super().identity(), "root": str(self.root), "seed": int(self.conf["seed"]),
+                "frames": self.n_frames, "generator_version": GENERATOR_VERSION}

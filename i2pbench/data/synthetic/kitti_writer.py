@@ -1,0 +1,71 @@
+"""Writes synthetic frames in the KITTI Odometry layout: sequences/NN/{velodyne/NNNNNN.bin, image_2/NNNNNN.png,
+calib.txt}. Each frame is an independent scene seeded by (seed, sequence, index), so frames can be produced in any
+order, by any number of processes, with byte-identical results.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .camera import render
+from .lidar import scan
+from .raycast import Caster
+from .rig import calib_text, camera2, hdl64
+from .scene import build_scene
+from .version import GENERATOR_VERSION
+
+
+def frame_rng(seed: int, sequence: str, index: int) -> np.random.Generator:
+    return np.random.default_rng([GENERATOR_VERSION, int(seed), int(sequence), int(index)])
+
+
+def simulate(seed: int, sequence: str, index: int, nthreads: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(points [N x 4] float32, ring [N] int16, image [H x W x 3] uint8 RGB) of one frame."""
+    rng = frame_rng(seed, sequence, index)
+    caster = Caster(build_scene(rng), nthreads=nthreads)
+    points, ring = scan(caster, hdl64(), rng)
+    return points, ring, render(caster, camera2(), rng)
+
+
+def write_frame(sequence_dir: Path, seed: int, index: int, nthreads: int = 0) -> None:
+    """Simulate and write frame `index` of the sequence directory (named by its two-digit sequence number)."""
+    sequence_dir = Path(sequence_dir)
+    points, _, image = simulate(seed, sequence_dir.name, index, nthreads)
+    stem = f"{index:06d}"
+    points.astype("<f4").tofile(sequence_dir / "velodyne" / f"{stem}.bin")
+    if not cv2.imwrite(str(sequence_dir / "image_2" / f"{stem}.png"), image[:, :, ::-1]):
+        raise OSError(f"could not write {sequence_dir / 'image_2' / f'{stem}.png'}")
+
+
+def write_sequence(sequence_dir: Path, n_frames: int, seed: int, workers: int | None = None) -> None:
+    """All frames of one sequence plus its calib.txt; frames are spread over `workers` processes."""
+    sequence_dir = Path(sequence_dir)
+    for sub in ("velodyne", "image_2"):
+        (sequence_dir / sub).mkdir(parents=True, exist_ok=True)
+    (sequence_dir / "calib.txt").write_text(calib_text())
+    workers = min(workers or os.cpu_count() or 1, n_frames)
+    if workers <= 1:
+        for index in range(n_frames):
+            write_frame(sequence_dir, seed, index)
+        return
+    # forkserver: workers start from a clean process (no inherited ray-caster threads) and import once.
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload([__name__])
+    with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+        jobs = [pool.submit(write_frame, sequence_dir, seed, index, 1) for index in range(n_frames)]
+        for job in jobs:
+            job.result()
+
+
+def generate_kitti(out_dir: Path, sequences: dict[str, int], seed: int = 0, workers: int | None = None) -> Path:
+    """Write sequences (two-digit name -> number of frames) under out_dir/sequences; returns out_dir."""
+    out_dir = Path(out_dir)
+    for sequence, n_frames in sequences.items():
+        write_sequence(out_dir / "sequences" / f"{int(sequence):02d}", n_frames, seed, workers)
+    return out_dir

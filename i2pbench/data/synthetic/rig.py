@@ -1,0 +1,99 @@
+"""The sensor rig: a KITTI-like HDL-64E and colour camera 2, with calibration written exactly as KITTI writes it.
+
+The calibration numbers are KITTI odometry sequence 00's (Tr's rotation made exactly orthonormal). The camera that
+renders the images is built by parsing the calib.txt text with KITTI's convention, T_cam2_lidar = Tr with P2's
+baseline inv(P2[:, :3]) @ P2[:, 3] added to its translation and K = P2[:, :3], so a reader that follows the
+convention recovers the rendering camera to the last bit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+
+import numpy as np
+
+IMAGE_SIZE = (1241, 376)  # (width, height) of KITTI odometry sequences 00-02
+LIDAR_HEIGHT = 1.73  # metres above the road, as on KITTI's car
+_K = [[718.856, 0.0, 607.1928], [0.0, 718.856, 185.2157], [0.0, 0.0, 1.0]]
+_P_LAST_COLUMN = {  # K @ baseline of each camera relative to camera 0
+    "P0": [0.0, 0.0, 0.0],
+    "P1": [-386.1448, 0.0, 0.0],
+    "P2": [45.38225, -0.1130887, 0.003779761],
+    "P3": [-337.2877, 2.369057, 0.004915215],
+}
+_TR = [
+    [4.276802385584e-04, -9.999672484946e-01, -8.084491683471e-03, -1.198459927713e-02],
+    [-7.210626507497e-03, 8.081198471645e-03, -9.999413164504e-01, -5.403984729748e-02],
+    [9.999738645903e-01, 4.859485810390e-04, -7.206933692422e-03, -2.921968648686e-01],
+]
+
+
+@dataclass(frozen=True)
+class Camera:
+    K: np.ndarray  # [3 x 3]
+    T_cam_lidar: np.ndarray  # [4 x 4] LiDAR frame -> camera 2 frame (x right, y down, z forward)
+    size: tuple[int, int] = IMAGE_SIZE
+
+
+@dataclass(frozen=True)
+class Lidar:
+    """Spinning 64-beam scanner; elevations of the HDL-64E's upper (1/3 deg) and lower (1/2 deg) blocks."""
+
+    elevations_deg: np.ndarray  # [64] from the top beam down: the order rings are written in
+    steps: int = 2000  # azimuth steps per revolution
+    max_range: float = 80.0  # KITTI's scans stop near 80 m
+    range_noise: float = 0.015  # metres, 1 sigma
+
+    def directions(self) -> np.ndarray:
+        """[64 x steps x 3] unit rays, ring by ring; each ring starts just left of +x and sweeps anticlockwise
+        (azimuth atan2(y, x) increasing through +-180 deg), the order of KITTI's velodyne files."""
+        el = np.radians(self.elevations_deg)[:, None]
+        az = (np.arange(self.steps) + 0.5) * (2 * np.pi / self.steps)
+        return np.stack(np.broadcast_arrays(np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)), axis=-1)
+
+
+def hdl64() -> Lidar:
+    upper = np.linspace(2.0, -8.33, 32)
+    lower = np.linspace(-8.83, -24.8, 32)
+    return Lidar(elevations_deg=np.concatenate([upper, lower]))
+
+
+def _orthonormal(R: np.ndarray) -> np.ndarray:
+    u, _, vt = np.linalg.svd(R)
+    return u @ vt
+
+
+def calib_text() -> str:
+    """calib.txt contents: P0..P3 and Tr (velodyne -> rectified camera 0), 12 numbers each in '%.12e'."""
+    K = np.array(_K)
+    lines = []
+    for name, last in _P_LAST_COLUMN.items():
+        lines.append(_line(name, np.concatenate([K, np.array(last)[:, None]], axis=1)))
+    tr = np.array(_TR)
+    tr[:, :3] = _orthonormal(tr[:, :3])
+    lines.append(_line("Tr", tr))
+    return "\n".join(lines) + "\n"
+
+
+def _line(name: str, matrix: np.ndarray) -> str:
+    return f"{name}: " + " ".join(f"{x:.12e}" for x in matrix.reshape(-1))
+
+
+def parse_calib(text: str) -> dict[str, np.ndarray]:
+    out = {}
+    for line in text.strip().splitlines():
+        key, values = line.split(":", 1)
+        out[key.strip()] = np.array([float(x) for x in values.split()]).reshape(3, 4)
+    return out
+
+
+@cache
+def camera2() -> Camera:
+    """Camera 2 exactly as a KITTI reader derives it from calib_text()."""
+    calib = parse_calib(calib_text())
+    K = calib["P2"][:, :3]
+    T = np.eye(4)
+    T[:3] = calib["Tr"]
+    T[:3, 3] += np.linalg.inv(K) @ calib["P2"][:, 3]
+    return Camera(K=K, T_cam_lidar=T)
