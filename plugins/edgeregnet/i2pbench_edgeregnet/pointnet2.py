@@ -44,20 +44,22 @@ def farthest_point_sampling(xyz: torch.Tensor, n: int, start: int = 0) -> torch.
     return index
 
 
-def ball_query(xyz: torch.Tensor, centres: torch.Tensor, radius: float, nsample: int, chunk: int = 512) -> torch.Tensor:
+def ball_query(xyz: torch.Tensor, centres: torch.Tensor, radius: float, nsample: int, chunk: int = 128) -> torch.Tensor:
     """first `nsample` indices (ascending) of xyz [N x 3] within radius of each centre [C x 3] -> [C x nsample].
 
     balls with fewer points repeat their first index; a centre taken from xyz always finds itself.
     """
     num = xyz.shape[0]
     k = min(nsample, num)
-    order = torch.arange(num, device=xyz.device)
-    out = []
-    for part in centres.split(chunk):  # chunks bound the [chunk x N] distance matrix
-        inside = torch.cdist(part, xyz).le(radius)
-        first = torch.where(inside, order, num).topk(k, dim=1, largest=False).values
-        out.append(torch.where(first == num, first[:, :1], first))
-    index = torch.cat(out) if out else centres.new_zeros((0, k), dtype=torch.long)
+    order = torch.arange(num, device=xyz.device, dtype=xyz.dtype)  # exact in float up to 2^24 points
+    sq = (xyz * xyz).sum(1)
+    out = [centres.new_zeros((0, k), dtype=torch.long)]
+    for part in centres.split(chunk):  # chunks bound the [chunk x N] distance matrix (small chunks stay in cache)
+        dist2 = torch.addmm(sq, part, xyz.t(), alpha=-2).add_((part * part).sum(1, keepdim=True))
+        key = dist2.gt_(radius**2).mul_(num).add_(order)  # index inside the ball, index + N outside
+        first = key.topk(k, dim=1, largest=False).values.long()
+        out.append(torch.where(first >= num, first[:, :1], first))
+    index = torch.cat(out)
     return index if k == nsample else torch.cat([index, index[:, :1].expand(-1, nsample - k)], 1)
 
 

@@ -1,0 +1,94 @@
+"""EdgeRegNet's geometric building blocks against brute force and hand-worked values."""
+
+import numpy as np
+import pytest
+import torch
+from i2pbench_edgeregnet.attention import normalize_pixels
+from i2pbench_edgeregnet.pointnet2 import (
+    ball_query,
+    farthest_point_sampling,
+    normalize_points,
+    three_nn_interpolate,
+)
+from i2pbench_edgeregnet.superpoint import sample_descriptors
+
+
+def coordinate_map(hc: int, wc: int) -> torch.Tensor:
+    """[1 x 2 x Hc x Wc]: channel 0 holds each cell's column j, channel 1 its row i."""
+    i, j = torch.meshgrid(torch.arange(hc, dtype=torch.float32), torch.arange(wc, dtype=torch.float32), indexing="ij")
+    return torch.stack([j, i])[None]
+
+
+def test_sampling_at_cell_centres_returns_the_cell():
+    # cell (i, j) pools pixels [8j, 8j + 8) x [8i, 8i + 8): its centre is pixel (8j + 3.5, 8i + 3.5)
+    fmap = coordinate_map(5, 7)
+    uv = torch.tensor([[3.5, 3.5], [8 * 6 + 3.5, 8 * 4 + 3.5], [8 * 2 + 3.5, 8 * 1 + 3.5]])
+    expected = torch.tensor([[0.0, 0.0], [6.0, 4.0], [2.0, 1.0]])
+    torch.testing.assert_close(sample_descriptors(fmap, uv, 8), expected)
+
+
+def test_sampling_between_centres_is_linear_and_clamped_at_the_border():
+    fmap = coordinate_map(5, 7)
+    uv = torch.tensor([[12.0, 20.0], [0.0, 0.0], [60.0, 39.0]])  # interior; left of first centre; right/below last
+    expected = torch.tensor([[(12 - 3.5) / 8, (20 - 3.5) / 8], [0.0, 0.0], [6.0, 4.0]])
+    torch.testing.assert_close(sample_descriptors(fmap, uv, 8), expected)
+
+
+def numpy_fps(xyz: np.ndarray, n: int, start: int = 0) -> np.ndarray:
+    chosen, dist = [start], np.full(len(xyz), np.inf)
+    for _ in range(n - 1):
+        dist = np.minimum(dist, ((xyz - xyz[chosen[-1]]) ** 2).sum(1))
+        chosen.append(int(np.argmax(dist)))
+    return np.array(chosen)
+
+
+def test_fps_matches_brute_force():
+    xyz = np.random.default_rng(0).normal(size=(200, 3)).astype(np.float32)
+    index = farthest_point_sampling(torch.from_numpy(xyz), 50, start=7).numpy()
+    np.testing.assert_array_equal(index, numpy_fps(xyz, 50, start=7))
+    assert len(set(index.tolist())) == 50
+
+
+def test_fps_of_more_points_than_exist_takes_them_all():
+    xyz = torch.rand(5, 3)
+    assert sorted(farthest_point_sampling(xyz, 9).tolist()) == [0, 1, 2, 3, 4]
+
+
+def brute_ball_query(xyz: np.ndarray, centres: np.ndarray, radius: float, nsample: int) -> np.ndarray:
+    out = np.empty((len(centres), nsample), np.int64)
+    for row, c in enumerate(centres):
+        inside = np.flatnonzero(np.linalg.norm(xyz - c, axis=1) <= radius)[:nsample]
+        out[row] = np.r_[inside, np.full(nsample - len(inside), inside[0])]
+    return out
+
+
+@pytest.mark.parametrize("nsample", [4, 16])
+def test_ball_query_matches_brute_force(nsample):
+    xyz = np.random.default_rng(1).uniform(-1, 1, (300, 3)).astype(np.float32)
+    centres = xyz[::7]
+    index = ball_query(torch.from_numpy(xyz), torch.from_numpy(centres), 0.35, nsample, chunk=8).numpy()
+    np.testing.assert_array_equal(index, brute_ball_query(xyz, centres, 0.35, nsample))
+
+
+def test_ball_query_pads_when_the_cloud_is_smaller_than_nsample():
+    xyz = torch.tensor([[0.0, 0, 0], [0.05, 0, 0], [5.0, 0, 0]])
+    assert ball_query(xyz, xyz[:1], 0.1, 4).tolist() == [[0, 1, 0, 0]]
+
+
+def test_three_nn_interpolation_by_hand():
+    known = torch.tensor([[0.0, 0, 0], [2.0, 0, 0], [0.0, 10, 0], [50.0, 0, 0]])
+    feats = torch.tensor([[1.0], [3.0], [100.0], [-1e6]])  # the 4th is never among the 3 nearest
+    # distances 0.5, 1.5, sqrt(100.25); weights 1/d normalised
+    w = np.array([1 / 0.5, 1 / 1.5, 1 / np.sqrt(100.25)])
+    expected = (w * [1.0, 3.0, 100.0]).sum() / w.sum()
+    out = three_nn_interpolate(torch.tensor([[0.5, 0, 0], [2.0, 0, 0]]), known, feats)
+    assert out[0, 0].item() == pytest.approx(expected, rel=1e-5)
+    assert out[1, 0].item() == pytest.approx(3.0, rel=1e-5)  # a query on a known point takes its feature
+
+
+def test_normalisations():
+    cloud = torch.tensor([[1.0, 1, 1], [3.0, 1, 1], [2.0, 1, 1]])
+    torch.testing.assert_close(normalize_points(cloud, cloud), torch.tensor([[-1.0, 0, 0], [1.0, 0, 0], [0.0, 0, 0]]))
+    uv = torch.tensor([[0.0, 0.0], [100.0, 25.0], [200.0, 50.0]])
+    expected = torch.tensor([[-1.0, -0.25], [0.0, 0.0], [1.0, 0.25]])
+    torch.testing.assert_close(normalize_pixels(uv, (200, 50)), expected)

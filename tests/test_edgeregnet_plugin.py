@@ -1,0 +1,40 @@
+"""The edgeregnet plugin registers its components, and refuses descriptor sizes that disagree."""
+
+import pytest
+from i2pbench_edgeregnet.attention import AttentionExchanger
+from i2pbench_edgeregnet.matching import LightGlueMatcher
+from i2pbench_edgeregnet.pointnet2 import PointNet2Encoder
+from i2pbench_edgeregnet.superpoint import SuperPointEncoder
+
+from i2pbench.plugins import build_registry
+
+
+def test_components_are_registered(monkeypatch):
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "edgeregnet")
+    registry = build_registry()
+    assert registry.component("encoder2d", "superpoint-cnn") is SuperPointEncoder
+    assert registry.component("encoder3d", "pointnet2") is PointNet2Encoder
+    assert registry.component("exchanger", "attention") is AttentionExchanger
+    assert registry.component("matcher", "lightglue") is LightGlueMatcher
+    assert registry.owner("matcher", "lightglue") == "edgeregnet"
+
+
+SMALL = {"descriptor_dim": 64}
+
+
+def test_matching_sizes_are_accepted():
+    upstream = {"encoder2d": SuperPointEncoder(SMALL), "encoder3d": PointNet2Encoder(SMALL)}
+    upstream["exchanger"] = AttentionExchanger({**SMALL, "num_blocks": 1})
+    assert LightGlueMatcher(SMALL).check_compatible(upstream) is None
+
+
+@pytest.mark.parametrize("kind", ["encoder2d", "encoder3d"])
+def test_a_matcher_refuses_an_encoder_of_another_size(kind):
+    other = {"encoder2d": SuperPointEncoder, "encoder3d": PointNet2Encoder}[kind](SMALL)
+    reason = LightGlueMatcher().check_compatible({kind: other})
+    assert reason == f"matcher 'lightglue' has descriptor_dim 256 but {kind} {other.name!r} has descriptor_dim 64"
+
+
+def test_an_exchanger_refuses_an_encoder_of_another_size():
+    reason = AttentionExchanger({**SMALL, "num_blocks": 1}).check_compatible({"encoder2d": SuperPointEncoder()})
+    assert "exchanger 'attention' has descriptor_dim 64" in reason and "encoder2d 'superpoint-cnn'" in reason
