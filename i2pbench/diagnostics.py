@@ -4,6 +4,8 @@ That share is what a matcher can at best recover and what a training loss gets a
 than 10%). It is reported among the 3D points that project into the image and over all of them, next to the chance
 level (`coverage2d`: the share of image pixels within eps_c of some 2D keypoint, i.e. the ratio 3D points scattered
 at random over the image would get), so an extractor pair is judged by its `lift` over chance, not only its ratio.
+A LiDAR sees only part of the image (not the sky), so even random 3D points show a lift above 1: the pair with the
+"random" 3D extractor is the empirical chance level for a 2D extractor.
 """
 
 from __future__ import annotations

@@ -74,20 +74,23 @@ def normalised_reflectance(points: np.ndarray) -> np.ndarray:
     return refl / top if top > 1.0 else np.clip(refl, 0.0, 1.0)
 
 
-def depth_edges(frame: Frame, eps_depth: float) -> np.ndarray:
-    """Point indices of depth-discontinuous points (distinct, in scan order)."""
+def scanline_edges(frame: Frame, values: np.ndarray, threshold: float, relative: bool) -> np.ndarray:
+    """Point indices (distinct, in scan order) where `values` jump along a ring by more than `threshold`, either
+    relative to the current value (depth) or absolute (reflectance)."""
     order = scan_order(frame.ring)
-    ring = frame.ring[order]
-    change = relative_change(frame.ranges[order].astype(np.float64))
-    return order[select_discontinuities(change, ring[1:] == ring[:-1], eps_depth)]
+    ring, ordered = frame.ring[order], values[order]
+    change = relative_change(ordered) if relative else np.diff(ordered)
+    return order[select_discontinuities(change, ring[1:] == ring[:-1], threshold)]
+
+
+def depth_edges(frame: Frame, eps_depth: float) -> np.ndarray:
+    """Depth-discontinuous points: relative range change beyond eps_D (ranges as the sensor measured them)."""
+    return scanline_edges(frame, frame.ranges.astype(np.float64), eps_depth, relative=True)
 
 
 def reflectance_edges(frame: Frame, eps_reflectance: float) -> np.ndarray:
-    """Point indices of reflectance-discontinuous points."""
-    order = scan_order(frame.ring)
-    ring = frame.ring[order]
-    change = np.diff(normalised_reflectance(frame.points)[order])
-    return order[select_discontinuities(change, ring[1:] == ring[:-1], eps_reflectance)]
+    """Reflectance-discontinuous points: absolute reflectance change beyond eps_R."""
+    return scanline_edges(frame, normalised_reflectance(frame.points), eps_reflectance, relative=False)
 
 
 class EdgeExtractor3D(Extractor3D):
