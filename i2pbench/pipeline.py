@@ -1,7 +1,7 @@
 """A chosen combination of components, checked before any frame runs, and run one frame at a time.
 
-Each stage is timed on its own; an exception or a contract violation in a stage becomes a failed outcome that names
-the component, so one bad frame or plugin never sinks a run.
+Each stage is timed on its own; an exception, a contract violation or a stage running past its time limit (see
+`i2pbench.timeout`) becomes a failed outcome that names the component, so one bad frame or plugin never sinks a run.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from .components import (
 )
 from .errors import PluginError, StageError
 from .plugins import Registry
+from .timeout import StageTimeout, TimeLimiter, timeout_from_env
 from .types import Features, Frame, Keypoints2D, Keypoints3D, PoseEstimate
 
 NONE = "none"  # a stage set to "none" is skipped
@@ -83,15 +84,19 @@ class FrameOutcome:
 class Pipeline:
     """Instantiated components for every stage kind, in data-flow order."""
 
-    def __init__(self, combination: Combination, stages: Mapping[str, Component]) -> None:
+    def __init__(
+        self, combination: Combination, stages: Mapping[str, Component], timeout_s: float | None | str = "env"
+    ) -> None:
+        """`timeout_s`: seconds one stage may take on one frame; None disables; "env" reads I2PBENCH_STAGE_TIMEOUT_S."""
         self.combination = combination
         self.stages = {k: stages[k] for k in STAGE_ORDER if k in stages}
+        self.limiter = TimeLimiter(timeout_from_env() if timeout_s == "env" else timeout_s)
         self.weights_identity = "none" if not self.learned_modules() else "untrained"
         self.weights_meta: dict[str, Any] = {}
         _check_compatibility(self.stages)
 
     @classmethod
-    def build(cls, registry: Registry, combination: Combination) -> Pipeline:
+    def build(cls, registry: Registry, combination: Combination, timeout_s: float | None | str = "env") -> Pipeline:
         missing = [k for k in REQUIRED_STAGES if combination.name(k) == NONE]
         if missing:
             raise PluginError(f"combination {combination.label!r} has no {', '.join(missing)}")
@@ -100,7 +105,7 @@ class Pipeline:
             if combination.name(kind) != NONE:
                 component_cls = registry.component(kind, combination.name(kind))
                 stages[kind] = component_cls(combination.confs.get(kind))
-        return cls(combination, stages)
+        return cls(combination, stages, timeout_s)
 
     def learned_modules(self) -> dict[str, LearnedComponent]:
         return {k: c for k, c in self.stages.items() if isinstance(c, LearnedComponent)}
@@ -150,10 +155,10 @@ class Pipeline:
             component = s[kind]
             current[0] = kind
             view = frame if GROUND_TRUTH in component.consumes else hidden
-            start = time.perf_counter()
-            out = component(view, *args)
-            _synchronize()
-            timings[kind] = time.perf_counter() - start
+            try:
+                out, timings[kind] = self.limiter.call(lambda: _timed(component, view, *args))
+            except StageTimeout as exc:
+                raise StageError(component.label, str(exc)) from exc
             return out
 
         kp2d = contracts.check_keypoints2d(call("extractor2d"), frame, s["extractor2d"].label)
@@ -179,6 +184,14 @@ class Pipeline:
                 call("exchanger", kp2d, kp3d, features), len(kp2d), len(kp3d), s["exchanger"].label
             )
         return features
+
+
+def _timed(component: Component, *args: Any) -> tuple[Any, float]:
+    """(output, seconds), timed where the stage runs so a worker thread's hand-off stays out of latency."""
+    start = time.perf_counter()
+    out = component(*args)
+    _synchronize()
+    return out, time.perf_counter() - start
 
 
 def _count(kind: str, result: Any, counts: dict[str, int]) -> None:

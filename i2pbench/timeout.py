@@ -1,0 +1,108 @@
+"""Per-call time limits for pipeline stages, so a hanging third-party component fails one frame, not the whole run.
+
+A Python thread cannot be killed, so a stage that overruns is *abandoned*: the caller stops waiting, the stage is
+recorded as failed, and its thread is left to finish (or hang) in the background as a daemon, which never keeps the
+process alive at exit. The next call gets a fresh worker thread. An abandoned call may still hold the component
+(and CPU) until it returns; that is the price of staying in-process, and a hang is rare enough to pay it.
+
+The limit comes from `Pipeline(timeout_s=...)`, else the environment variable I2PBENCH_STAGE_TIMEOUT_S (seconds, or
+"none" to disable), else DEFAULT_TIMEOUT_S. With no limit a stage runs in the caller's thread, exactly as without
+this module.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import torch
+
+DEFAULT_TIMEOUT_S = 300.0
+ENV_VAR = "I2PBENCH_STAGE_TIMEOUT_S"
+
+
+class StageTimeout(Exception):
+    """A stage ran past its time limit and was abandoned."""
+
+    def __init__(self, seconds: float) -> None:
+        super().__init__(f"timed out after {seconds:g} s (abandoned; its thread may still run in the background)")
+        self.seconds = seconds
+
+
+def timeout_from_env(default: float | None = DEFAULT_TIMEOUT_S) -> float | None:
+    """The limit set by I2PBENCH_STAGE_TIMEOUT_S ("none", "off" or "0" disable it), else `default`."""
+    value = os.environ.get(ENV_VAR, "").strip().lower()
+    if not value:
+        return default
+    if value in ("none", "off", "0"):
+        return None
+    try:
+        return float(value)
+    except ValueError as exc:
+        raise ValueError(f"{ENV_VAR}={value!r}: expected seconds or 'none'") from exc
+
+
+class _Task:
+    """One call handed to the worker, and its outcome."""
+
+    def __init__(self, fn: Callable[[], Any]) -> None:
+        self.fn = fn
+        self.done = threading.Event()
+        self.value: Any = None
+        self.error: BaseException | None = None
+        # torch's grad and inference modes are thread-local: the worker must run under the caller's.
+        self.grad = torch.is_grad_enabled()
+        self.inference = torch.is_inference_mode_enabled()
+
+    def run(self) -> None:
+        try:
+            with torch.inference_mode(self.inference), torch.set_grad_enabled(self.grad):
+                self.value = self.fn()
+        except BaseException as exc:  # handed back to the caller, who decides what it means
+            self.error = exc
+        finally:
+            self.done.set()
+
+
+class TimeLimiter:
+    """Runs calls in one reusable daemon worker thread and waits at most `timeout_s` for each."""
+
+    def __init__(self, timeout_s: float | None) -> None:
+        if timeout_s is not None and timeout_s <= 0:
+            raise ValueError(f"timeout_s must be positive or None, got {timeout_s}")
+        self.timeout_s = timeout_s
+        self._tasks: queue.SimpleQueue[_Task | None] | None = None
+
+    def call(self, fn: Callable[[], Any]) -> Any:
+        """fn() within the limit; raises StageTimeout when it overruns, or whatever fn raised."""
+        if self.timeout_s is None:
+            return fn()
+        task = _Task(fn)
+        self._worker().put(task)
+        if not task.done.wait(self.timeout_s):
+            self._retire()
+            raise StageTimeout(self.timeout_s)
+        if task.error is not None:
+            raise task.error
+        return task.value
+
+    def _retire(self) -> None:
+        """Leave the busy worker behind; it exits once the abandoned call returns, and the next call starts another."""
+        if self._tasks is not None:
+            self._tasks.put(None)
+        self._tasks = None
+
+    def _worker(self) -> queue.SimpleQueue[_Task | None]:
+        if self._tasks is None:
+            tasks: queue.SimpleQueue[_Task | None] = queue.SimpleQueue()
+            threading.Thread(target=_serve, args=(tasks,), name="i2pbench-stage", daemon=True).start()
+            self._tasks = tasks
+        return self._tasks
+
+
+def _serve(tasks: queue.SimpleQueue[_Task | None]) -> None:
+    while (task := tasks.get()) is not None:
+        task.run()
