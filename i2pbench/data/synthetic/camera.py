@@ -6,31 +6,31 @@ import cv2
 import numpy as np
 
 from .raycast import Caster, Hits, surface
-from .rig import LIDAR_HEIGHT, Camera
+from .rig import Camera
 from .scene import Lighting
 from .textures import value_noise
 
 _RAYS: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
 
-def pixel_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+def pixel_rays(camera: Camera, lidar_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World origin [3] and unit directions [H*W x 3] through pixel centres: the ray of pixel (u, v) projects to
     exactly (u, v) with K, the convention of KITTI and OpenCV. Cached: every frame uses the same rig."""
-    key = camera.K.tobytes() + camera.T_cam_lidar.tobytes() + np.array(camera.size).tobytes()
+    key = camera.K.tobytes() + camera.T_cam_lidar.tobytes() + np.array(camera.size).tobytes() + lidar_pose.tobytes()
     if key not in _RAYS:
         w, h = camera.size
         u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
         pix = np.stack([u.ravel(), v.ravel(), np.ones(u.size)], axis=1)
-        R, t = camera.T_cam_lidar[:3, :3], camera.T_cam_lidar[:3, 3]
-        dirs = pix @ np.linalg.inv(camera.K).T @ R  # R^T applied to each row
+        T_world_cam = lidar_pose @ np.linalg.inv(camera.T_cam_lidar)
+        dirs = pix @ np.linalg.inv(camera.K).T @ T_world_cam[:3, :3].T
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-        _RAYS[key] = (-R.T @ t + np.array([0.0, 0.0, LIDAR_HEIGHT]), dirs)
+        _RAYS[key] = (T_world_cam[:3, 3].copy(), dirs)
     return _RAYS[key]
 
 
-def render(caster: Caster, camera: Camera, rng: np.random.Generator) -> np.ndarray:
-    """[H x W x 3] uint8 RGB."""
-    origin, dirs = pixel_rays(camera)
+def render(caster: Caster, camera: Camera, lidar_pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """[H x W x 3] uint8 RGB of the camera rigidly attached to the LiDAR at `lidar_pose` (world <- LiDAR)."""
+    origin, dirs = pixel_rays(camera, lidar_pose)
     hits = caster.cast(origin, dirs)
     light = caster.scene.lighting
     radiance = _sky(dirs, light)

@@ -29,8 +29,9 @@ def simulate(seed: int, sequence: str, index: int, nthreads: int = 0) -> tuple[n
     """(points [N x 4] float32, ring [N] int16, image [H x W x 3] uint8 RGB) of one frame."""
     rng = frame_rng(seed, sequence, index)
     caster = Caster(build_scene(rng), nthreads=nthreads)
-    points, ring = scan(caster, hdl64(), rng)
-    return points, ring, render(caster, camera2(), rng)
+    lidar = hdl64()
+    points, ring, _ = scan(caster, lidar, rng)
+    return points, ring, render(caster, camera2(), lidar.pose, rng)
 
 
 def write_frame(sequence_dir: Path, seed: int, index: int, nthreads: int = 0) -> None:

@@ -40,8 +40,12 @@ class Palette:
 
     def asphalt(self, lines, **extra) -> int:
         paint = (0.92, 0.92, 0.88) if self.rng.random() < 0.85 else (0.95, 0.8, 0.2)
-        return self.add("asphalt", color=self.grey(0.18, 0.35), ir=float(self.rng.uniform(0.12, 0.25)),
-                        paint=self.jitter(paint, 0.04), paint_ir=float(self.rng.uniform(0.55, 0.85)), lines=lines,
+        r = self.rng
+        extra.setdefault("patch", (float(r.uniform(2, 8)), float(r.uniform(1, 4))))
+        extra.setdefault("patch_frac", float(r.uniform(0.0, 0.25)))
+        extra.setdefault("patch_tone", float(r.choice([0.7, 0.8, 1.2, 1.35])))
+        return self.add("asphalt", color=self.grey(0.18, 0.35), ir=float(self.rng.uniform(0.3, 0.45)),
+                        paint=self.jitter(paint, 0.04), paint_ir=float(self.rng.uniform(0.6, 0.95)), lines=lines,
                         **extra)
 
     def paving(self) -> int:
@@ -56,7 +60,7 @@ class Palette:
 
     def foliage(self) -> int:
         rgb = self.jitter((0.16, 0.3, 0.1), 0.25)
-        return self.add("foliage", color=rgb, ir=float(self.rng.uniform(0.35, 0.55)), scale=0.5)
+        return self.add("foliage", color=rgb, ir=float(self.rng.uniform(0.35, 0.55)), scale=0.5, porosity=0.3)
 
     def plain(self, rgb, ir: float, noise: float = 0.1) -> int:
         return self.add("plain", color=tuple(rgb), ir=float(ir), noise=noise)

@@ -38,25 +38,32 @@ class Camera:
 
 @dataclass(frozen=True)
 class Lidar:
-    """Spinning 64-beam scanner; elevations of the HDL-64E's upper (1/3 deg) and lower (1/2 deg) blocks."""
+    """Spinning multi-beam scanner mounted at `pose` (world <- LiDAR frame)."""
 
-    elevations_deg: np.ndarray  # [64] from the top beam down: the order rings are written in
+    elevations_deg: np.ndarray  # [B] beam elevations in ring-index order
+    pose: np.ndarray  # [4 x 4] world <- LiDAR
     steps: int = 2000  # azimuth steps per revolution
+    azimuth0: float = np.pi / 2000  # azimuth (rad, in the LiDAR frame) of the first step
+    clockwise: bool = False  # sweep direction seen from above
     max_range: float = 80.0  # KITTI's scans stop near 80 m
     range_noise: float = 0.015  # metres, 1 sigma
 
     def directions(self) -> np.ndarray:
-        """[64 x steps x 3] unit rays, ring by ring; each ring starts just left of +x and sweeps anticlockwise
-        (azimuth atan2(y, x) increasing through +-180 deg), the order of KITTI's velodyne files."""
+        """[B x steps x 3] unit rays in the LiDAR frame, ring by ring, each ring in sweep order."""
         el = np.radians(self.elevations_deg)[:, None]
-        az = (np.arange(self.steps) + 0.5) * (2 * np.pi / self.steps)
+        step = (-1 if self.clockwise else 1) * 2 * np.pi / self.steps
+        az = self.azimuth0 + np.arange(self.steps) * step
         return np.stack(np.broadcast_arrays(np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)), axis=-1)
 
 
 def hdl64() -> Lidar:
+    """KITTI's HDL-64E: upper block +2 to -8.33 deg (1/3 deg apart), lower block to -24.8 deg; rings top first, each
+    starting just left of +x and sweeping anticlockwise (atan2(y, x) rising through +-180 deg) like KITTI's files."""
     upper = np.linspace(2.0, -8.33, 32)
     lower = np.linspace(-8.83, -24.8, 32)
-    return Lidar(elevations_deg=np.concatenate([upper, lower]))
+    pose = np.eye(4)
+    pose[2, 3] = LIDAR_HEIGHT
+    return Lidar(elevations_deg=np.concatenate([upper, lower]), pose=pose)
 
 
 def _orthonormal(R: np.ndarray) -> np.ndarray:

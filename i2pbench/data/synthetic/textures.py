@@ -81,6 +81,12 @@ def asphalt(u, v, p):
     rgb, ir = _noisy(u, v, p, amount=0.35, scale=2.0)
     fine = value_noise(u, v, 0.12, p["seed"] + 7) - 0.5
     rgb *= (1 + 0.15 * fine)[:, None]
+    # Repaired patches and stains: sharp-edged tone changes, as common on real roads, weak in reflectance.
+    patch = np.floor(u / p["patch"][0]) * 7 + np.floor(v / p["patch"][1])
+    patched = _hash(patch, np.floor(v / p["patch"][1]), p["seed"] + 9) < p["patch_frac"]
+    tone = np.where(patched, p["patch_tone"], 1.0)
+    rgb *= tone[:, None]
+    ir = ir * np.where(patched, 1 + 0.3 * (p["patch_tone"] - 1), 1.0)
     paint = np.zeros(u.shape, bool)
     for offset, width, dash, gap in p.get("lines", ()):
         across = np.abs(v - offset) < width / 2
