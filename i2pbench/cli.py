@@ -9,7 +9,7 @@ from collections.abc import Sequence
 
 from .errors import I2PBenchError
 
-COMMANDS = ("plugins", "run", "train", "diagnose", "data")
+COMMANDS = ("plugins", "run", "train", "diagnose", "data", "compare")
 
 
 def build_parser() -> argparse.ArgumentParser:

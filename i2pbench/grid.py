@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +14,8 @@ from .components import STAGE_ORDER
 from .errors import PluginError
 from .pipeline import NONE, Combination
 from .plugins import Registry
+
+GRID_KEYS = ("base", "grid", "confs")
 
 
 def parse_conf_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
@@ -27,9 +30,15 @@ def parse_conf_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
     return confs
 
 
-def base_combinations(registry: Registry, preset: str | None) -> list[dict[str, str]]:
-    """The preset's combinations, or the "default" preset's when none is named."""
+def base_combinations(registry: Registry, preset: str | None, stages_named: bool = False) -> list[dict[str, str]]:
+    """The preset's combinations, or the "default" preset's when none is named.
+
+    With no preset and no "default" registered, a command that names its stages (`stages_named`) starts from an
+    empty base, so `--extractor lsd --extractor3d depth ...` works before any default pipeline exists.
+    """
     if preset is None and "default" not in registry.presets:
+        if stages_named:
+            return [{}]
         raise PluginError(
             "no 'default' preset is registered; name the stages or a --preset "
             f"(known: {', '.join(sorted(registry.presets)) or 'none'})"
@@ -78,12 +87,30 @@ def _merge_confs(
     return merged
 
 
-def load_grid_file(path: str | Path) -> tuple[list[dict[str, str]], dict[str, list[str]]]:
-    """A YAML grid: `base: {kind: name}` (optional) and `grid: {kind: [names]}`."""
+@dataclass(frozen=True)
+class GridFile:
+    """A YAML grid: `base: {kind: name}`, `grid: {kind: [names]}` (their product) and `confs: {kind: {key: value}}`."""
+
+    base: dict[str, str] = field(default_factory=dict)
+    grid: dict[str, list[str]] = field(default_factory=dict)
+    confs: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+
+def load_grid_file(path: str | Path) -> GridFile:
+    """Read and check a grid file; unknown keys and stage kinds are refused, naming the file."""
     data = yaml.safe_load(Path(path).read_text()) or {}
-    base = data.get("base", {})
-    grid = {k: ([v] if isinstance(v, str) else list(v)) for k, v in (data.get("grid") or {}).items()}
-    unknown = (set(base) | set(grid)) - set(STAGE_ORDER)
+    if not isinstance(data, dict) or set(data) - set(GRID_KEYS):
+        found = sorted(data) if isinstance(data, dict) else type(data).__name__
+        raise PluginError(f"grid file {path}: expected a mapping with keys {list(GRID_KEYS)}, found {found}")
+    base = {k: _name(v) for k, v in (data.get("base") or {}).items()}
+    grid = {k: [_name(n) for n in (v if isinstance(v, list) else [v])] for k, v in (data.get("grid") or {}).items()}
+    confs = {k: dict(v) for k, v in (data.get("confs") or {}).items()}
+    unknown = (set(base) | set(grid) | set(confs)) - set(STAGE_ORDER)
     if unknown:
         raise PluginError(f"grid file {path}: unknown stage kinds {sorted(unknown)}; kinds are {list(STAGE_ORDER)}")
-    return [base], grid
+    return GridFile(base, grid, confs)
+
+
+def _name(value: Any) -> str:
+    """YAML reads a bare `null`/`~` as None: for a stage that means "none" (skipped)."""
+    return NONE if value is None else str(value)

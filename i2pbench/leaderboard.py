@@ -1,11 +1,13 @@
 """Leaderboards: one row per combination, weights and dataset split, aggregated from per-frame records.
 
 Column names carry an arrow saying which direction is better (lm-eval's make_table). Latency columns are per frame,
-in milliseconds, timed around each stage only.
+in milliseconds, timed around each stage only (data loading, scoring and storing are outside), over the frames
+whose pipeline ran to the end: a frame that crashed early would otherwise look fast.
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -17,39 +19,58 @@ from .protocol import Protocol
 
 GROUP = ["dataset", "split", "combination", "weights"]
 ACC, RTE, RRE = "Acc. (%) ↑", "RTE (m) ↓", "RRE (°) ↓"
+RTE_MEAN, RRE_MEAN = "rte_mean", "rre_mean"
+MODEL_SIZE = "model size (MB) ↓"
 LATENCY_PREFIX = "latency"
+LATENCY_MEDIAN, LATENCY_P90 = "latency median (ms) ↓", "latency p90 (ms) ↓"
+
+
+def stage_latency(kind: str, stat: str) -> str:
+    """Column name of one stage's latency statistic ("median" or "p90")."""
+    return f"{LATENCY_PREFIX} {kind} {stat} (ms) ↓"
 
 
 def _pm(mean: float, std: float) -> str:
     return "-" if np.isnan(mean) else f"{mean:.2f} ± {std:.2f}"
 
 
+def _ms(seconds: pd.Series, q: float) -> float:
+    seconds = seconds.dropna()
+    return 1e3 * float(seconds.quantile(q)) if len(seconds) else np.nan
+
+
+def _latency(records: pd.DataFrame) -> dict[str, float]:
+    ran = records[records["failed_component"] == ""]
+    row = {LATENCY_MEDIAN: _ms(ran["t_total_s"], 0.5), LATENCY_P90: _ms(ran["t_total_s"], 0.9)}
+    for kind in STAGE_ORDER:
+        column = f"t_{kind}_s"
+        if column in ran and ran[column].notna().any():
+            row[stage_latency(kind, "median")] = _ms(ran[column], 0.5)
+            row[stage_latency(kind, "p90")] = _ms(ran[column], 0.9)
+    return row
+
+
 def _row(records: pd.DataFrame, protocol: Protocol) -> dict:
     stats = summarize(records["rte_m"], records["rre_deg"], protocol)
     first = records.iloc[0]
     geo = records["geodesic_deg"].replace(np.inf, np.nan)
-    row = {
+    return {
         **{kind: first[kind] for kind in STAGE_ORDER},
         "weights_trained_on": first.get("weights_trained_on", ""),
         "frames": len(records),
         "failures": int((records["status"] != "ok").sum()),
+        "kept": stats["kept"],  # frames inside the protocol's filter, over which RTE and RRE are averaged
         ACC: round(stats["acc_pct"], 2),
         RTE: _pm(stats["rte_mean"], stats["rte_std"]),
         RRE: _pm(stats["rre_mean"], stats["rre_std"]),
-        "rte_mean": stats["rte_mean"],
+        RTE_MEAN: stats["rte_mean"],
         "rte_std": stats["rte_std"],
-        "rre_mean": stats["rre_mean"],
+        RRE_MEAN: stats["rre_mean"],
         "rre_std": stats["rre_std"],
         "geodesic median (°) ↓": float(np.nanmedian(geo)) if geo.notna().any() else np.nan,
-        "model size (MB) ↓": round(float(first["model_size_mb"]), 3),
-        "latency median (ms) ↓": 1e3 * float(records["t_total_s"].median()),
-        "latency p90 (ms) ↓": 1e3 * float(records["t_total_s"].quantile(0.9)),
+        MODEL_SIZE: round(float(first["model_size_mb"]), 3),
+        **_latency(records),
     }
-    for kind in STAGE_ORDER:
-        column = f"t_{kind}_s"
-        if column in records and records[column].notna().any():
-            row[f"{LATENCY_PREFIX} {kind} (ms) ↓"] = 1e3 * float(records[column].median())
-    return row
 
 
 def build(records: pd.DataFrame, protocol: Protocol | None = None) -> pd.DataFrame:
@@ -60,10 +81,18 @@ def build(records: pd.DataFrame, protocol: Protocol | None = None) -> pd.DataFra
         for key, group in records.groupby(GROUP, sort=False, dropna=False)
     ]
     board = pd.DataFrame(rows)
-    return board.sort_values([ACC, "rre_mean"], ascending=[False, True], kind="stable").reset_index(drop=True)
+    return board.sort_values([ACC, RRE_MEAN], ascending=[False, True], kind="stable").reset_index(drop=True)
 
 
-DISPLAY = ["combination", "weights", "frames", "failures", ACC, RTE, RRE, "model size (MB) ↓", "latency median (ms) ↓"]
+def latency_columns(board: pd.DataFrame) -> list[str]:
+    """The machine-dependent columns: everything else must agree between two runs with the same seed."""
+    return [c for c in board.columns if c.startswith(LATENCY_PREFIX)]
+
+
+DISPLAY = [
+    "dataset", "split", "combination", "weights", "frames", "failures", ACC, RTE, RRE, MODEL_SIZE,
+    LATENCY_MEDIAN, LATENCY_P90,
+]
 
 
 def to_markdown(board: pd.DataFrame, columns: list[str] | None = None) -> str:
@@ -78,11 +107,25 @@ def to_markdown(board: pd.DataFrame, columns: list[str] | None = None) -> str:
 
 
 def write(board: pd.DataFrame, stem: str | Path) -> list[Path]:
-    """Write `<stem>.csv`, `<stem>.md` and `<stem>.parquet`."""
+    """Write `<stem>.csv`, `<stem>.md` and `<stem>.parquet`, each atomically (a reader never sees half a table)."""
     stem = Path(stem)
     stem.parent.mkdir(parents=True, exist_ok=True)
-    paths = [stem.with_suffix(".csv"), stem.with_suffix(".md"), stem.with_suffix(".parquet")]
-    board.to_csv(paths[0], index=False)
-    paths[1].write_text(to_markdown(board) + "\n")
-    board.to_parquet(paths[2], index=False)
+    paths = [stem.with_name(f"{stem.name}.{ext}") for ext in ("csv", "md", "parquet")]
+    writers = (
+        lambda p: board.to_csv(p, index=False),
+        lambda p: p.write_text(to_markdown(board) + "\n"),
+        lambda p: board.to_parquet(p, index=False),
+    )
+    for path, writer in zip(paths, writers, strict=True):
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        writer(tmp)
+        os.replace(tmp, path)
     return paths
+
+
+def read(path: str | Path) -> pd.DataFrame:
+    """A leaderboard written by `write`, from its CSV or Parquet file."""
+    path = Path(path)
+    if path.suffix == ".parquet":
+        return pd.read_parquet(path)
+    return pd.read_csv(path, keep_default_na=False, na_values=["", "nan", "NaN"])

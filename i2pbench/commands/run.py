@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
+from typing import Any
 
 STAGE_OPTIONS = {
     "extractor2d": ("--extractor", "--extractor2d"),
@@ -26,7 +28,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     for kind, flags in STAGE_OPTIONS.items():
         p.add_argument(*flags, dest=kind, type=_split_list, help=f"{kind} name(s), comma-separated; 'none' skips")
     p.add_argument("--preset", help="a registered list of combinations (e.g. edge-ablation)")
-    p.add_argument("--grid", help="YAML grid file: base: {kind: name}, grid: {kind: [names]}")
+    p.add_argument("--grid", help="YAML grid file: base: {kind: name}, grid: {kind: [names]}, confs: {kind: {k: v}}")
     p.add_argument("--conf", action="append", default=[], metavar="KIND.KEY=VALUE", help="component config override")
     add_data_options(p)
     p.add_argument(
@@ -36,7 +38,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--runs-dir", default="runs", help="where per-frame results are cached")
     p.add_argument("--out", help="leaderboard file stem (default leaderboards/<dataset>-<split>)")
     p.add_argument("--overwrite", action="store_true", help="recompute frames already in the cache")
-    p.add_argument("--threads", type=int, default=None, help="torch threads (recorded with the results)")
+    p.add_argument("--threads", type=int, default=None, help="torch and OpenCV threads (default min(4, cores))")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -44,11 +46,36 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dataset", default="synthetic", help="dataset name (kitti, nuscenes, synthetic, ...)")
     p.add_argument("--split", default="test")
     p.add_argument("--data-root", help="dataset root directory (else I2PBENCH_<NAME>_ROOT)")
+    p.add_argument(
+        "--data-conf", action="append", default=[], metavar="KEY=VALUE",
+        help="dataset config (YAML values; dotted keys nest, e.g. frames.test=3)",
+    )
     p.add_argument("--frames", type=int, default=None, help="use only the first N frames of the split")
 
 
+def parse_data_conf(items: list[str]) -> dict[str, Any]:
+    """`["frames.test=3"]` -> {"frames": {"test": 3}}."""
+    import yaml
+
+    from ..errors import DataError
+
+    conf: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise DataError(f"--data-conf {item!r}: expected KEY=VALUE")
+        *parents, leaf = key.split(".")
+        node = conf
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = yaml.safe_load(value)
+    return conf
+
+
 def open_dataset(registry, args: argparse.Namespace):
-    conf = {"root": args.data_root} if args.data_root else {}
+    conf = parse_data_conf(getattr(args, "data_conf", []))
+    if args.data_root:
+        conf["root"] = args.data_root
     return registry.dataset(args.dataset)(args.split, conf)
 
 
@@ -56,57 +83,75 @@ def _combinations(registry, args: argparse.Namespace):
     from ..grid import base_combinations, expand, load_grid_file, parse_conf_overrides
 
     choices = {kind: getattr(args, kind) for kind in STAGE_OPTIONS if getattr(args, kind)}
-    bases = base_combinations(registry, args.preset)
+    bases = base_combinations(registry, args.preset, stages_named=bool(choices or args.grid))
+    confs = parse_conf_overrides(args.conf)
     if args.grid:
-        grid_bases, grid = load_grid_file(args.grid)
-        bases = [{**b, **g} for b in bases for g in grid_bases]
-        choices = {**grid, **choices}
-    return expand(bases, choices, parse_conf_overrides(args.conf))
+        grid = load_grid_file(args.grid)
+        bases = [{**b, **grid.base} for b in bases]
+        choices = {**grid.grid, **choices}
+        confs = {k: {**grid.confs.get(k, {}), **confs.get(k, {})} for k in {*grid.confs, *confs}}
+    return expand(bases, choices, confs)
 
 
 def run(args: argparse.Namespace) -> int:
-    import torch
-    from tqdm import tqdm
-
     from .. import leaderboard
     from ..plugins import default_registry
     from ..protocol import Protocol
-    from ..runs.environment import environment
-    from ..runs.runner import run_grid
+    from ..runs.environment import environment, fix_threads
+    from ..runs.invocation import Invocation
     from ..runs.store import ResultsStore
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    threads = fix_threads(args.threads)
     registry = default_registry()
     combinations = _combinations(registry, args)
     dataset = open_dataset(registry, args)
     frame_ids = dataset.frame_ids()[: args.frames]
     protocol = Protocol(seed=args.seed)
     store = ResultsStore(Path(args.runs_dir) / f"{dataset.name}-{dataset.split}")
-    store.write_meta(
+    invocation = Invocation(
+        store.root,
         {
+            "argv": sys.argv,
+            "threads": threads,
             "protocol": protocol.card(),
             "dataset": dataset.identity(),
+            "frames": frame_ids,
             "environment": environment(),
             "combinations": [c.describe() for c in combinations],
-        }
+        },
     )
-    bar = tqdm(total=len(frame_ids) * len(combinations), disable=args.quiet, unit="frame", file=sys.stderr)
-    records = run_grid(
-        registry,
-        combinations,
-        dataset,
-        protocol,
-        store,
-        weights=args.weights,
-        frame_ids=frame_ids,
-        overwrite=args.overwrite,
-        progress=bar.update,
-    )
-    bar.close()
+    start = time.perf_counter()
+    records = _run_grid(registry, combinations, dataset, frame_ids, protocol, store, invocation.id, args)
     board = leaderboard.build(records, protocol)
-    out = args.out or f"leaderboards/{dataset.name}-{dataset.split}"
-    paths = leaderboard.write(board, out)
+    invocation.finish(
+        wall_s=time.perf_counter() - start,
+        computed=int((records["invocation"] == invocation.id).sum()),
+        reused=int((records["invocation"] != invocation.id).sum()),
+        rows=board[leaderboard.GROUP].to_dict("records"),
+    )
+    paths = leaderboard.write(board, args.out or f"leaderboards/{dataset.name}-{dataset.split}")
     print(leaderboard.to_markdown(board))
     print(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store.root}", file=sys.stderr)
     return 0
+
+
+def _run_grid(registry, combinations, dataset, frame_ids, protocol, store, invocation: str, args):
+    """run_grid with a progress bar (ETA) over every frame of every combination, cached ones included."""
+    from tqdm import tqdm
+
+    from ..runs.runner import run_grid
+
+    total = len(frame_ids) * len(combinations)
+    with tqdm(total=total, disable=args.quiet, unit="frame", file=sys.stderr, dynamic_ncols=True) as bar:
+        return run_grid(
+            registry,
+            combinations,
+            dataset,
+            protocol,
+            store,
+            weights=args.weights,
+            frame_ids=frame_ids,
+            overwrite=args.overwrite,
+            progress=bar.update,
+            invocation=invocation,
+        )

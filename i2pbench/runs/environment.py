@@ -1,16 +1,36 @@
-"""What machine and software produced a result (as pytest-benchmark's machine_info and lm-eval's results JSON)."""
+"""What machine and software produced a result (as pytest-benchmark's machine_info and lm-eval's results JSON).
+
+Latency depends on the thread count, so runs fix it (torch and OpenCV alike) rather than inherit whatever the
+machine's default is, and record it.
+"""
 
 from __future__ import annotations
 
 import importlib.metadata
 import os
 import platform
+import subprocess
+from pathlib import Path
 
+import cv2
 import torch
 
 from ..weights import git_commit
 
 PACKAGES = ("i2pbench", "torch", "numpy", "opencv-contrib-python-headless", "open3d", "pandas", "pluggy", "poselib")
+MAX_DEFAULT_THREADS = 4  # the default thread count: this, or fewer on smaller machines
+
+
+def default_threads() -> int:
+    return max(1, min(MAX_DEFAULT_THREADS, os.cpu_count() or 1))
+
+
+def fix_threads(n: int | None = None) -> int:
+    """Set torch's and OpenCV's intra-op thread counts to `n` (default `default_threads()`); returns it."""
+    n = n or default_threads()
+    torch.set_num_threads(n)
+    cv2.setNumThreads(n)
+    return n
 
 
 def _version(package: str) -> str:
@@ -20,15 +40,30 @@ def _version(package: str) -> str:
         return "not installed"
 
 
+def git_dirty() -> bool | None:
+    """Whether the checkout has uncommitted changes (then the commit alone does not name the code)."""
+    try:
+        out = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True, text=True, timeout=10, cwd=Path(__file__).resolve().parent,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return bool(out.stdout.strip()) if out.returncode == 0 else None
+
+
 def environment() -> dict:
     return {
         "git_commit": git_commit(),
+        "git_dirty": git_dirty(),
         "packages": {p: _version(p) for p in PACKAGES},
         "python": platform.python_version(),
+        "platform": platform.platform(),
         "machine": platform.machine(),
         "processor": platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(),
         "torch_threads": torch.get_num_threads(),
+        "opencv_threads": cv2.getNumThreads(),
         "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
         "node": platform.node(),
     }

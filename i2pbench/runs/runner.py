@@ -1,6 +1,8 @@
 """Run combinations over a dataset split, one frame at a time, into the results store.
 
 Data flows one way: dataset -> SensorFrame -> protocol -> Frame -> pipeline -> PoseEstimate -> metrics -> record.
+`run_frame` is a pure function of (job, dataset, frame id, protocol), so frames can be farmed out to workers; the
+store is the only shared state, and it is written one whole file per frame.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import torch
 
 from ..components import STAGE_ORDER
 from ..data.base import Dataset
@@ -38,6 +41,16 @@ class Job:
     def weights(self) -> str:
         return self.pipeline.weights_identity
 
+    @property
+    def label(self) -> str:
+        """The combination's stages, plus its config overrides, so rows that differ only in config stay apart."""
+        confs = [f"{kind}.{k}={v}" for kind, conf in sorted(self.combination.confs.items()) for k, v in conf.items()]
+        return self.combination.label + (f" [{', '.join(confs)}]" if confs else "")
+
+    def stages(self) -> dict[str, dict[str, Any]]:
+        """Each stage's name and full config (defaults merged): a changed default changes the cache key."""
+        return {kind: {"name": c.name, "conf": c.conf} for kind, c in self.pipeline.stages.items()}
+
 
 def prepare(registry: Registry, combinations: Sequence[Combination], weights: str = "auto") -> list[Job]:
     """Build every pipeline before any frame runs, so an incompatible combination is refused up front."""
@@ -57,7 +70,7 @@ def frame_key(dataset: Dataset, frame_id: str, job: Job, protocol: Protocol) -> 
         {
             "data": dataset.identity(),
             "frame": frame_id,
-            "stages": job.combination.describe(),
+            "stages": job.stages(),
             "weights": job.weights,
             "protocol": protocol.card(),
         }
@@ -74,19 +87,27 @@ def run_job(
     overwrite: bool = False,
     warmup: int = 1,
     progress: Progress | None = None,
-) -> list[str]:
-    """Run one combination over frames, skipping those already stored; returns the frames' cache keys."""
-    keys = [frame_key(dataset, f, job, protocol) for f in frame_ids]
-    todo = [(k, f) for k, f in zip(keys, frame_ids, strict=True) if overwrite or not store.has(k)]
-    if progress:
-        progress(len(frame_ids) - len(todo))
-    if todo and warmup:
-        _warm_up(job, dataset, protocol, todo[0][1], warmup)
-    for key, frame_id in todo:
-        store.put(key, run_frame(job, dataset, frame_id, protocol))
+    invocation: str = "",
+) -> list[pd.DataFrame]:
+    """Run one combination over frames, reusing those already stored; returns one record table per frame.
+
+    The warm-up runs just before the first frame that is actually computed, so a fully cached job costs no
+    pipeline run at all.
+    """
+    tables, warm = [], warmup == 0
+    for frame_id in frame_ids:
+        key = frame_key(dataset, frame_id, job, protocol)
+        table = None if overwrite else store.get(key)
+        if table is None:
+            if not warm:
+                _warm_up(job, dataset, protocol, frame_id, warmup)
+                warm = True
+            record = run_frame(job, dataset, frame_id, protocol)
+            table = store.put(key, {**record, "invocation": invocation})
+        tables.append(table)
         if progress:
             progress(1)
-    return keys
+    return tables
 
 
 def _warm_up(job: Job, dataset: Dataset, protocol: Protocol, frame_id: str, times: int) -> None:
@@ -108,9 +129,11 @@ def run_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> 
         outcome = FrameOutcome(
             PoseEstimate.failed(str(exc)), {}, error=str(exc), failed_component=f"dataset {dataset.name!r}"
         )
-        return _record(job, dataset, frame_id, protocol, outcome, None, time.perf_counter() - start)
+        elapsed = time.perf_counter() - start
+        return _record(job, dataset, frame_id, protocol, outcome, None, elapsed, elapsed)
+    loaded = time.perf_counter()
     outcome = job.pipeline.run(frame)
-    return _record(job, dataset, frame_id, protocol, outcome, frame.T_gt, time.perf_counter() - start)
+    return _record(job, dataset, frame_id, protocol, outcome, frame.T_gt, loaded - start, time.perf_counter() - start)
 
 
 def _record(
@@ -120,6 +143,7 @@ def _record(
     protocol: Protocol,
     outcome: FrameOutcome,
     T_gt: np.ndarray | None,
+    load: float,
     wall: float,
 ) -> dict[str, Any]:
     T_pred = outcome.estimate.T
@@ -128,7 +152,7 @@ def _record(
         "dataset": dataset.name,
         "split": dataset.split,
         "frame_id": frame_id,
-        "combination": job.combination.label,
+        "combination": job.label,
         "combination_key": job.combination.key(),
         **{kind: job.combination.name(kind) for kind in STAGE_ORDER},
         "weights": job.weights,
@@ -145,7 +169,9 @@ def _record(
         "n_matches": outcome.n_matches,
         "n_inliers": outcome.n_inliers,
         "model_size_mb": job.pipeline.model_size_mb(),
+        "threads": torch.get_num_threads(),
         "t_total_s": sum(outcome.timings.values()),
+        "t_load_s": load,
         "wall_s": wall,
         "T_pred": (T_pred.ravel().tolist() if T_pred is not None else None),
         "T_gt": (T_gt.ravel().tolist() if T_gt is not None else None),
@@ -165,11 +191,14 @@ def run_grid(
     frame_ids: Sequence[str] | None = None,
     overwrite: bool = False,
     progress: Progress | None = None,
+    invocation: str = "",
 ) -> pd.DataFrame:
     """Run every combination over the split; returns this grid's per-frame records (cached ones included)."""
     jobs = prepare(registry, combinations, weights)
     frame_ids = list(frame_ids if frame_ids is not None else dataset.frame_ids())
-    keys: list[str] = []
+    tables: list[pd.DataFrame] = []
     for job in jobs:
-        keys += run_job(job, dataset, frame_ids, protocol, store, overwrite=overwrite, progress=progress)
-    return store.load(keys)
+        tables += run_job(
+            job, dataset, frame_ids, protocol, store, overwrite=overwrite, progress=progress, invocation=invocation
+        )
+    return pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()

@@ -1,8 +1,11 @@
 """Per-frame results, one small Parquet file per finished frame, written atomically.
 
 Each file is named by the frame's cache key (a hash of dataset, frame, component configs, weights and protocol) and
-appears only once complete (written to a temp file, then renamed), so a run killed at any point resumes without
-losing or corrupting a finished frame, and a rerun skips what is done.
+appears only once complete: it is written to a temp file named after the writing process, then renamed over the
+final name. A run killed at any point (SIGKILL included) therefore leaves finished frames intact and at most one
+stray temp file, which readers ignore and the next store opening removes once its writer is dead. No fsync: a killed
+process loses nothing the kernel already holds; only a power cut could, and then the unreadable file is detected on
+read, reported by path, set aside and recomputed.
 """
 
 from __future__ import annotations
@@ -10,11 +13,15 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
+import sys
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
+
+PARQUET_MAGIC = b"PAR1"
+TEMP_SUFFIX = ".tmp"
+CORRUPT_SUFFIX = ".corrupt"
 
 
 def cache_key(parts: dict[str, Any]) -> str:
@@ -22,10 +29,13 @@ def cache_key(parts: dict[str, Any]) -> str:
 
 
 class ResultsStore:
+    """A directory of `frames/<key>.parquet` files, plus `invocations/` (see `runs.invocation`)."""
+
     def __init__(self, root: str | Path) -> None:
         self.root = Path(root)
         self.frames_dir = self.root / "frames"
         self.frames_dir.mkdir(parents=True, exist_ok=True)
+        self._sweep_dead_temps()
 
     def path(self, key: str) -> Path:
         return self.frames_dir / f"{key}.parquet"
@@ -33,25 +43,56 @@ class ResultsStore:
     def has(self, key: str) -> bool:
         return self.path(key).is_file()
 
-    def put(self, key: str, record: dict[str, Any]) -> None:
+    def put(self, key: str, record: dict[str, Any]) -> pd.DataFrame:
+        """Store one frame's record; returns it as the one-row table that was written."""
         frame = pd.DataFrame([record])
-        fd, tmp = tempfile.mkstemp(dir=self.frames_dir, prefix=".", suffix=".tmp")
-        os.close(fd)
+        tmp = self.frames_dir / f".{key}.{os.getpid()}{TEMP_SUFFIX}"
         try:
             frame.to_parquet(tmp, index=False)
             os.replace(tmp, self.path(key))
         finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+            tmp.unlink(missing_ok=True)
+        return frame
+
+    def get(self, key: str) -> pd.DataFrame | None:
+        """The stored record, or None when absent or unreadable (then reported and set aside for recomputing)."""
+        path = self.path(key)
+        if not path.is_file():
+            return None
+        try:
+            return pd.read_parquet(path)
+        except FileNotFoundError:  # removed meanwhile, e.g. by a concurrent --overwrite
+            return None
+        except Exception as exc:  # pyarrow raises several types for a damaged file; any of them means recompute
+            self._set_aside(path, exc)
+            return None
 
     def load(self, keys: list[str] | None = None) -> pd.DataFrame:
-        """All records (or those with the given keys that exist), one row per frame and combination."""
-        paths = sorted(self.frames_dir.glob("*.parquet")) if keys is None else [self.path(k) for k in keys]
-        tables = [pd.read_parquet(p) for p in paths if p.is_file()]
+        """All records (or those with the given keys that exist and are readable), one row per frame."""
+        if keys is None:
+            keys = sorted(p.stem for p in self.frames_dir.glob("*.parquet") if not p.name.startswith("."))
+        tables = [t for t in (self.get(k) for k in keys) if t is not None]
         return pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()
 
-    def write_meta(self, meta: dict[str, Any]) -> None:
-        fd, tmp = tempfile.mkstemp(dir=self.root, prefix=".", suffix=".tmp")
-        with os.fdopen(fd, "w") as f:
-            json.dump(meta, f, indent=2, default=str)
-        os.replace(tmp, self.root / "run.json")
+    def _set_aside(self, path: Path, exc: Exception) -> None:
+        aside = path.with_name(path.name + CORRUPT_SUFFIX)
+        print(f"i2pbench: warning: unreadable result {path} ({type(exc).__name__}: {exc}); "
+              f"moved to {aside.name}, it will be recomputed", file=sys.stderr)
+        os.replace(path, aside)
+
+    def _sweep_dead_temps(self) -> None:
+        """Remove temp files left by writers that no longer run (a killed run's last, unfinished frame)."""
+        for tmp in self.frames_dir.glob(f".*{TEMP_SUFFIX}"):
+            pid = tmp.name.removesuffix(TEMP_SUFFIX).rsplit(".", 1)[-1]
+            if pid.isdigit() and not _alive(int(pid)):
+                tmp.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else
+        return True
+    return True

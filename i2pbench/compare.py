@@ -1,0 +1,209 @@
+"""The regression gate: compare a new leaderboard with a baseline under explicit per-metric tolerances.
+
+Rows are matched by dataset, split, combination and weights. A row regresses when a checked metric moves the wrong
+way by more than its tolerance, when it becomes NaN where the baseline had a value (e.g. no frame passes the RTE/RRE
+filter any more), or when its frame count changes; a baseline row missing from the new leaderboard is a failure too.
+Tolerances are absolute for accuracy metrics (`acc=-2`: at most 2 points lower) and ratios for latency
+(`latency=x1.5`: at most 1.5 times slower), because seconds mean nothing across machines.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import pandas as pd
+
+from .components import STAGE_ORDER
+from .errors import I2PBenchError
+from .leaderboard import (
+    ACC,
+    GROUP,
+    LATENCY_MEDIAN,
+    LATENCY_P90,
+    MODEL_SIZE,
+    RRE_MEAN,
+    RTE_MEAN,
+    stage_latency,
+)
+
+DEFAULT_TOLERANCE = "acc=-2,rte=+0.05,rre=+0.2"
+# metric -> (leaderboard column, higher is better)
+METRICS: dict[str, tuple[str, bool]] = {
+    "acc": (ACC, True),
+    "rte": (RTE_MEAN, False),
+    "rre": (RRE_MEAN, False),
+    "failures": ("failures", False),
+    "kept": ("kept", True),
+    "size": (MODEL_SIZE, False),
+    "latency": (LATENCY_MEDIAN, False),
+    "latency_p90": (LATENCY_P90, False),
+    **{f"latency.{kind}": (stage_latency(kind, "median"), False) for kind in STAGE_ORDER},
+}
+
+
+@dataclass(frozen=True)
+class Tolerance:
+    """How far one metric may move in its worse direction: `slack` units, or a factor of `ratio`."""
+
+    metric: str
+    slack: float = 0.0
+    ratio: float | None = None
+
+    @property
+    def column(self) -> str:
+        return METRICS[self.metric][0]
+
+    @property
+    def higher_is_better(self) -> bool:
+        return METRICS[self.metric][1]
+
+    def limit(self, base: float) -> float:
+        """The worst value still accepted, given the baseline's."""
+        if self.ratio is not None:
+            return base / self.ratio if self.higher_is_better else base * self.ratio
+        return base - self.slack if self.higher_is_better else base + self.slack
+
+    def regressed(self, new: float, base: float) -> bool:
+        if math.isnan(base):
+            return False  # nothing to fall from
+        if math.isnan(new):
+            return True
+        eps = 1e-9 * max(1.0, abs(base))  # CSV round trips and summation order are not bit-exact
+        return new < self.limit(base) - eps if self.higher_is_better else new > self.limit(base) + eps
+
+    def __str__(self) -> str:
+        if self.ratio is not None:
+            return f"{self.metric}=x{self.ratio:g}"
+        return f"{self.metric}={'-' if self.higher_is_better else '+'}{self.slack:g}"
+
+
+def parse_tolerances(text: str) -> list[Tolerance]:
+    """`"acc=-2,rte=+0.05,rre=+0.2,latency=x1.5"` -> tolerances, refusing unknown metrics and wrong-way signs."""
+    return [_parse_one(item.strip()) for item in text.split(",") if item.strip()]
+
+
+def _parse_one(item: str) -> Tolerance:
+    metric, sep, value = item.partition("=")
+    metric, value = metric.strip(), value.strip()
+    if not sep or metric not in METRICS:
+        raise I2PBenchError(f"tolerance {item!r}: expected METRIC=VALUE with METRIC one of {', '.join(METRICS)}")
+    if value.startswith("x"):
+        ratio = _number(item, value[1:])
+        if ratio < 1:
+            raise I2PBenchError(f"tolerance {item!r}: a ratio is at least x1 (x1.5 allows 1.5 times worse)")
+        return Tolerance(metric, ratio=ratio)
+    if metric.startswith("latency"):
+        raise I2PBenchError(f"tolerance {item!r}: latency tolerances are ratios such as {metric}=x1.5, not times")
+    slack = _number(item, value)
+    worse = "-" if METRICS[metric][1] else "+"
+    if value[0] in "+-" and value[0] != worse and slack != 0:
+        hint = f"{metric}={worse}{abs(slack):g}"
+        raise I2PBenchError(f"tolerance {item!r}: {metric} gets worse as it goes {worse}; write {hint}")
+    return Tolerance(metric, slack=abs(slack))
+
+
+def _number(item: str, text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise I2PBenchError(f"tolerance {item!r}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise I2PBenchError(f"tolerance {item!r}: {text!r} is not finite")
+    return value
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One failed check: a metric beyond tolerance, a changed frame count, or a missing row."""
+
+    row: tuple
+    what: str  # a metric name, "frames" or "missing"
+    base: float = math.nan
+    new: float = math.nan
+    limit: float = math.nan
+
+
+@dataclass
+class Report:
+    findings: list[Finding] = field(default_factory=list)
+    compared: int = 0
+    added: list[tuple] = field(default_factory=list)  # rows only in the new leaderboard (reported, not checked)
+    tolerances: list[Tolerance] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.findings
+
+
+def _indexed(board: pd.DataFrame, name: str) -> pd.DataFrame:
+    missing = [c for c in GROUP if c not in board]
+    if missing:
+        raise I2PBenchError(f"{name}: not a leaderboard (no column {', '.join(missing)})")
+    keys = board[GROUP].astype(str)
+    duplicated = keys[keys.duplicated()]
+    if len(duplicated):
+        raise I2PBenchError(f"{name}: row {' / '.join(duplicated.iloc[0])} appears more than once")
+    return board.set_index(pd.MultiIndex.from_frame(keys))
+
+
+def _value(row: pd.Series, column: str) -> float:
+    """The cell as a float; absent, empty or non-numeric cells are NaN."""
+    try:
+        return float(row.get(column, math.nan))
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def compare(new: pd.DataFrame, base: pd.DataFrame, tolerances: list[Tolerance]) -> Report:
+    """Check every baseline row against the new leaderboard."""
+    new, base = _indexed(new, "new leaderboard"), _indexed(base, "baseline")
+    for tol in tolerances:
+        if tol.column not in base:
+            raise I2PBenchError(f"tolerance {tol}: the baseline has no column {tol.column!r}")
+    report = Report(added=[k for k in new.index if k not in base.index], tolerances=list(tolerances))
+    for key, b in base.iterrows():
+        if key not in new.index:
+            report.findings.append(Finding(key, "missing"))
+            continue
+        report.compared += 1
+        report.findings += _check_row(key, new.loc[key], b, tolerances)
+    return report
+
+
+def _check_row(key: tuple, new: pd.Series, base: pd.Series, tolerances: list[Tolerance]) -> list[Finding]:
+    findings = []
+    if "frames" in base and _value(new, "frames") != _value(base, "frames"):
+        findings.append(Finding(key, "frames", _value(base, "frames"), _value(new, "frames")))
+    for tol in tolerances:
+        b, n = _value(base, tol.column), _value(new, tol.column)
+        if tol.regressed(n, b):
+            findings.append(Finding(key, tol.metric, b, n, tol.limit(b)))
+    return findings
+
+
+def format_report(report: Report) -> str:
+    """A readable diff: each failing row, what moved and the limit it crossed; then a one-line verdict."""
+    lines = [f"tolerances: {', '.join(str(t) for t in report.tolerances) or 'none'}"]
+    for key in dict.fromkeys(f.row for f in report.findings):
+        lines.append(f"FAIL  {' / '.join(key)}")
+        lines += [f"        {_describe(f)}" for f in report.findings if f.row == key]
+    lines += [f"new   {' / '.join(key)} (not in the baseline; not checked)" for key in report.added]
+    missing = sum(f.what == "missing" for f in report.findings)
+    regressed = len({f.row for f in report.findings}) - missing
+    verdict = "FAIL" if report.findings else "OK"
+    lines.append(
+        f"{verdict}: {report.compared} rows compared, {regressed} regressed, {missing} missing, "
+        f"{len(report.added)} new"
+    )
+    return "\n".join(lines)
+
+
+def _describe(f: Finding) -> str:
+    if f.what == "missing":
+        return "missing: in the baseline, not in the new leaderboard"
+    if f.what == "frames":
+        return f"frames: {f.base:g} -> {f.new:g} (results over different frames are not comparable)"
+    if math.isnan(f.new):
+        return f"{f.what}: {f.base:.4g} -> NaN (no value where the baseline had one)"
+    return f"{f.what}: {f.base:.4g} -> {f.new:.4g} ({f.new - f.base:+.4g}; limit {f.limit:.4g})"
