@@ -1,6 +1,7 @@
 """The edgeregnet plugin registers its components, and refuses descriptor sizes that disagree."""
 
 import pytest
+from i2pbench_edgeregnet import configs
 from i2pbench_edgeregnet.attention import AttentionExchanger
 from i2pbench_edgeregnet.matching import LightGlueMatcher
 from i2pbench_edgeregnet.pointnet2 import PointNet2Encoder
@@ -38,3 +39,12 @@ def test_a_matcher_refuses_an_encoder_of_another_size(kind):
 def test_an_exchanger_refuses_an_encoder_of_another_size():
     reason = AttentionExchanger({**SMALL, "num_blocks": 1}).check_compatible({"encoder2d": SuperPointEncoder()})
     assert "exchanger 'attention' has descriptor_dim 64" in reason and "encoder2d 'superpoint-cnn'" in reason
+
+
+@pytest.mark.parametrize("variant", ["FULL", "SMALL"])
+def test_shipped_configs_build_and_agree(variant):
+    conf = getattr(configs, variant)
+    classes = {"encoder2d": SuperPointEncoder, "encoder3d": PointNet2Encoder, "exchanger": AttentionExchanger}
+    upstream = {kind: cls(conf[kind]) for kind, cls in classes.items()}
+    assert LightGlueMatcher(conf["matcher"]).check_compatible(upstream) is None
+    assert {kind: cls.name for kind, cls in classes.items()} | {"matcher": "lightglue"} == configs.COMPONENTS

@@ -1,0 +1,29 @@
+"""Stage configs of EdgeRegNet's learned stages: the paper's size and a smaller one that trains on a CPU.
+
+Keys are stage kinds, values config overrides for that stage's component (`{}`: its defaults, the paper's sizes).
+The small variant also expects the extractors capped at `SMALL_KEYPOINTS` edge pixels and edge points.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+COMPONENTS = {"encoder2d": "superpoint-cnn", "encoder3d": "pointnet2", "exchanger": "attention", "matcher": "lightglue"}
+FULL_KEYPOINTS = 3000
+SMALL_KEYPOINTS = 1024
+
+FULL: dict[str, dict[str, Any]] = {kind: {} for kind in COMPONENTS}
+
+SMALL: dict[str, dict[str, Any]] = {
+    "encoder2d": {"descriptor_dim": 128, "channels": (32, 32, 64, 64), "head_channels": 128},
+    "encoder3d": {
+        "descriptor_dim": 128,
+        "num_points": 8192,
+        "sa1": {"npoint": 2048, "radius": 0.1, "nsample": 16, "mlp": (32, 32, 64)},
+        "sa2": {"npoint": 512, "radius": 0.2, "nsample": 16, "mlp": (64, 64, 128)},
+        "fp_mlp": (128,),
+        "head_mlp": (128,),
+    },
+    "exchanger": {"descriptor_dim": 128, "num_blocks": 3, "num_heads": 4},
+    "matcher": {"descriptor_dim": 128},
+}
