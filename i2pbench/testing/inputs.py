@@ -1,0 +1,104 @@
+"""What a stage receives besides the frame, made from ground truth, and how the kit calls a stage of each kind.
+
+Keypoints are true correspondences (3D points in view and their projections, plus a few unmatched pixels), so a
+matcher or solver sees a solvable problem; descriptors are seeded random unit vectors. Values a component does not
+declare in `consumes` are withheld exactly as the pipeline withholds them: T_gt is hidden, and a matcher that does not
+declare features gets `Features(None, None)`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..components import FEATURES2D, FEATURES3D, GROUND_TRUTH, Component
+from ..geometry import in_image, project
+from ..types import Features, Frame, Keypoints2D, Keypoints3D, Matches
+
+DEFAULT_DIM = 32  # descriptor width when the component's conf has no `descriptor_dim`
+
+
+@dataclasses.dataclass(frozen=True)
+class StageInputs:
+    """The upstream values a stage may be given, all consistent with one frame."""
+
+    kp2d: Keypoints2D
+    kp3d: Keypoints3D
+    features: Features
+    matches: Matches
+
+
+def descriptor_dim(component: Component) -> int:
+    dim = component.conf.get("descriptor_dim") if isinstance(component.conf, dict) else None
+    return int(dim) if isinstance(dim, int) and dim > 0 else DEFAULT_DIM
+
+
+def random_descriptors(count: int, dim: int, seed: int) -> torch.Tensor:
+    """[count x dim] float32 unit vectors from a seeded generator."""
+    desc = torch.randn(count, dim, generator=torch.Generator().manual_seed(seed))
+    return torch.nn.functional.normalize(desc, dim=1)
+
+
+def visible_points(frame: Frame, limit: int) -> np.ndarray:
+    """Up to `limit` rows of frame.points that project into the image, evenly spread over those that do."""
+    finite = np.isfinite(frame.points[:, :3]).all(axis=1)
+    uv, front = project(frame.K, frame.T_gt, np.nan_to_num(frame.points[:, :3]).astype(np.float64))
+    rows = np.flatnonzero(in_image(uv, front, frame.image_size) & finite)
+    return rows[np.linspace(0, len(rows) - 1, min(limit, len(rows))).astype(np.int64)] if len(rows) else rows
+
+
+def ground_truth_inputs(frame: Frame, dim: int, limit: int = 64, extra_pixels: int = 8) -> StageInputs:
+    """True 2D-3D pairs of one frame (match i pairs 2D keypoint i with 3D keypoint i) and random descriptors."""
+    rows = visible_points(frame, limit)
+    kp3d = Keypoints3D.from_index(frame, rows)
+    uv, _ = project(frame.K, frame.T_gt, kp3d.xyz.astype(np.float64))
+    width, height = frame.image_size
+    extras = np.random.default_rng(0).uniform((0, 0), (width - 1, height - 1), size=(extra_pixels, 2))
+    kp2d = Keypoints2D(np.concatenate([uv, extras]).astype(np.float32))
+    pairs = np.arange(len(kp3d), dtype=np.int64)
+    matches = Matches(pairs, pairs.copy(), np.ones(len(pairs), np.float32))
+    features = Features(random_descriptors(len(kp2d), dim, 1), random_descriptors(len(kp3d), dim, 2))
+    return StageInputs(kp2d, kp3d, features, matches)
+
+
+def empty_inputs(dim: int) -> StageInputs:
+    """Zero keypoints on both sides, [0 x D] descriptors, no matches."""
+    kp3d = Keypoints3D(np.zeros(0, np.int64), np.zeros((0, 3), np.float32), np.zeros(0, np.float32))
+    features = Features(torch.zeros(0, dim), torch.zeros(0, dim))
+    return StageInputs(Keypoints2D(np.zeros((0, 2), np.float32)), kp3d, features, Matches.empty())
+
+
+def without_2d(inputs: StageInputs) -> StageInputs:
+    """Zero 2D keypoints, 3D side kept (no matches then)."""
+    desc2d = inputs.features.desc2d
+    features = Features(None if desc2d is None else desc2d[:0], inputs.features.desc3d)
+    return StageInputs(Keypoints2D(inputs.kp2d.uv[:0]), inputs.kp3d, features, Matches.empty())
+
+
+def declared_view(component: Component, frame: Frame, inputs: StageInputs) -> tuple[Frame, Features]:
+    """The frame and features the pipeline would hand this component, given what it declares it consumes."""
+    view = frame if GROUND_TRUTH in component.consumes else frame.without_ground_truth()
+    f = inputs.features
+    features = Features(
+        f.desc2d if FEATURES2D in component.consumes else None, f.desc3d if FEATURES3D in component.consumes else None
+    )
+    return view, features
+
+
+def call_stage(component: Component, frame: Frame, inputs: StageInputs) -> Any:
+    """Call a component as the pipeline calls its kind, under torch.inference_mode as the pipeline does."""
+    view, features = declared_view(component, frame, inputs)
+    args: dict[str, tuple[Any, ...]] = {
+        "extractor2d": (),
+        "extractor3d": (),
+        "encoder2d": (inputs.kp2d,),
+        "encoder3d": (inputs.kp3d,),
+        "exchanger": (inputs.kp2d, inputs.kp3d, features),
+        "matcher": (inputs.kp2d, inputs.kp3d, features),
+        "solver": (inputs.kp2d, inputs.kp3d, inputs.matches),
+    }
+    with torch.inference_mode():
+        return component(view, *args[component.kind])

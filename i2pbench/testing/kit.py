@@ -1,0 +1,193 @@
+"""`check_component(cls)`: every way a component can break the pipeline, found before a benchmark run finds it.
+
+Checks, in order (each problem names its check and what went wrong):
+- declaration: subclasses a stage base, has a name, a dict `default_conf`, refuses unknown config keys, and its
+  `consumes`/`provides` name known values that stages before its kind can provide;
+- contract: on a sample frame the output has the documented types, shapes, dtypes, ranges and finite values;
+- declared inputs: a component that fails without T_gt but works with it reads ground truth it did not declare;
+- no side effects: the frame's arrays are unchanged after the call;
+- determinism: the same instance, called again on an equal frame, returns an identical output. Nothing is reseeded
+  in between, as in a run: a draw from a global RNG would make results depend on which frames ran before;
+- empty input: a blank image, an empty scan, zero keypoints, zero matches give a valid empty output (a solver given
+  no matches must answer PoseEstimate.failed), never an exception;
+- bad input (NaN points, a negative-stride image, coincident points): an exception with a message, or a valid
+  output; never garbage and never a bare exception.
+Latency on the sample frame is measured and reported, never asserted.
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from collections.abc import Mapping
+from typing import Any
+
+from ..components import STAGE_BASES, STAGE_ORDER, Component, ConfigError, LearnedComponent
+from ..errors import StageError
+from ..types import Frame
+from .cases import Case, bad_cases, empty_cases
+from .frames import synthetic_frame
+from .inputs import StageInputs, call_stage, descriptor_dim, ground_truth_inputs
+from .outputs import changed_arrays, difference, frame_arrays, validate
+from .report import ConformanceReport, Problem
+
+
+def check_component(cls: type, conf: Mapping[str, Any] | None = None, frame: Frame | None = None) -> ConformanceReport:
+    """Run every check on `cls` built with `conf`; returns the problems found (empty when it conforms)."""
+    report = ConformanceReport(getattr(cls, "__name__", repr(cls)))
+    report.extend(check_declaration(cls))
+    if report:
+        return report
+    try:
+        component = cls(dict(conf) if conf else None)
+    except Exception as exc:
+        return report.add("construct", f"{cls.__name__}({conf}) raised {_describe(exc)}")
+    if isinstance(component, LearnedComponent):
+        component.eval()  # inference behaviour (no dropout), as the runner sets it
+    report.component = component.label
+    frame = frame if frame is not None else synthetic_frame()
+    inputs = ground_truth_inputs(frame, descriptor_dim(component))
+    first = _check_sample(component, frame, inputs, report)
+    if first is not None:
+        _check_determinism(component, frame, inputs, first, report)
+    for case in empty_cases(component.kind, frame, inputs, descriptor_dim(component)):
+        _check_empty(component, case, report)
+    for case in bad_cases(component.kind, frame, inputs):
+        _check_bad(component, case, report)
+    return report
+
+
+def assert_conforms(cls: type, conf: Mapping[str, Any] | None = None, frame: Frame | None = None) -> None:
+    """pytest-friendly: raise AssertionError listing every problem check_component finds."""
+    report = check_component(cls, conf, frame)
+    assert not report, str(report)
+
+
+def check_declaration(cls: type) -> list[Problem]:
+    """Problems in what the class declares, found without running it."""
+    if not (isinstance(cls, type) and issubclass(cls, tuple(STAGE_BASES.values()))):
+        bases = ", ".join(b.__name__ for b in STAGE_BASES.values())
+        return [Problem("declaration", f"{cls!r} does not subclass a stage base ({bases})")]
+    problems = []
+    if not isinstance(cls.name, str) or not cls.name:
+        problems.append(Problem("declaration", f"{cls.__name__} has no `name` (the name users pick it by)"))
+    if not isinstance(cls.default_conf, dict):
+        problems.append(Problem("declaration", f"default_conf must be a dict, got {type(cls.default_conf).__name__}"))
+    problems += _check_values(cls)
+    if not problems:
+        problems += _check_unknown_key_refused(cls)
+    return problems
+
+
+def _check_values(cls: type[Component]) -> list[Problem]:
+    """consumes/provides must name known values, and only values available before this kind runs."""
+    known = set().union(*(b.consumes | b.provides for b in STAGE_BASES.values()))
+    known |= {"ground_truth"}
+    available = {"image", "points", "ground_truth"}
+    for kind in STAGE_ORDER[: STAGE_ORDER.index(cls.kind)]:
+        available |= STAGE_BASES[kind].provides
+    problems = []
+    for attr in ("consumes", "provides"):
+        unknown = sorted(set(getattr(cls, attr)) - known)
+        if unknown:
+            problems.append(Problem("declaration", f"{attr} names unknown values {unknown}; known: {sorted(known)}"))
+    late = sorted(set(cls.consumes) & known - available)
+    if late:
+        problems.append(Problem("declaration", f"consumes {late}, which no stage before a {cls.kind} provides"))
+    return problems
+
+
+def _check_unknown_key_refused(cls: type[Component]) -> list[Problem]:
+    key = "__conformance_unknown_key__"
+    try:
+        cls({key: 1})
+    except (ConfigError, ValueError, KeyError, TypeError):
+        return []
+    except Exception as exc:  # refused, if clumsily; construction is checked properly later
+        return [Problem("declaration", f"an unknown config key raised {_describe(exc)}; expected ConfigError")]
+    return [Problem("declaration", f"accepted the unknown config key {key!r}: typos in user config would go unseen")]
+
+
+def _check_sample(component: Component, frame: Frame, inputs: StageInputs, report: ConformanceReport) -> Any:
+    """Run on the sample frame; check the contract, declared inputs and side effects. The output, or None."""
+    before = frame_arrays(frame)
+    try:
+        out, report.first_call_ms = _timed(component, frame, inputs)
+        validate(component, out, frame, inputs)
+    except Exception as exc:
+        report.add(*_sample_failure(component, frame, inputs, exc))
+        return None
+    changed = changed_arrays(before, frame)
+    if changed:
+        report.add("side effects", f"wrote into the frame's {', '.join(changed)}; stages must not modify inputs")
+    return out
+
+
+def _sample_failure(component: Component, frame: Frame, inputs: StageInputs, exc: Exception) -> tuple[str, str]:
+    """Tell a broken contract from a component that only works when it can see ground truth."""
+    if isinstance(exc, StageError):
+        return "contract", str(exc)
+    if frame.T_gt is not None and "ground_truth" not in component.consumes:
+        peeking = copy.copy(component)
+        peeking.consumes = component.consumes | {"ground_truth"}
+        try:
+            validate(component, call_stage(peeking, frame, inputs), frame, inputs)
+        except Exception:
+            pass
+        else:
+            return "declared inputs", (
+                f"fails without frame.T_gt ({_describe(exc)}) but works with it: it reads ground truth; "
+                "declare GROUND_TRUTH in `consumes` (the pipeline hides T_gt from stages that do not)"
+            )
+    return "contract", f"raised {_describe(exc)} on the sample frame"
+
+
+def _check_determinism(
+    component: Component, frame: Frame, inputs: StageInputs, first: Any, report: ConformanceReport
+) -> None:
+    try:
+        again, report.latency_ms = _timed(component, copy.deepcopy(frame), copy.deepcopy(inputs))
+    except Exception as exc:
+        report.add("determinism", f"a second call on the same frame raised {_describe(exc)}")
+        return
+    where = difference(first, again)
+    if where:
+        report.add(
+            "determinism",
+            f"two calls on the same frame returned different {where}; seed any randomness "
+            "from the frame (dataset, frame id) and conf, not from a global or unseeded generator",
+        )
+
+
+def _check_empty(component: Component, case: Case, report: ConformanceReport) -> None:
+    try:
+        out = call_stage(component, case.frame, case.inputs)
+        validate(component, out, case.frame, case.inputs)
+    except Exception as exc:
+        report.add("empty input", f"on {case.what}: {_describe(exc)}; return a valid empty output instead")
+        return
+    if case.must_fail_pose and out.ok:
+        report.add("empty input", f"on {case.what}: returned a pose; return PoseEstimate.failed(reason)")
+
+
+def _check_bad(component: Component, case: Case, report: ConformanceReport) -> None:
+    try:
+        out = call_stage(component, case.frame, case.inputs)
+    except Exception as exc:
+        if not str(exc).strip():
+            report.add("bad input", f"on {case.what}: raised {type(exc).__name__} with no message; say what is wrong")
+        return
+    try:
+        validate(component, out, case.frame, case.inputs)
+    except StageError as exc:
+        report.add("bad input", f"on {case.what}: returned garbage instead of raising a clear error: {exc}")
+
+
+def _timed(component: Component, frame: Frame, inputs: StageInputs) -> tuple[Any, float]:
+    start = time.perf_counter()
+    out = call_stage(component, frame, inputs)
+    return out, 1e3 * (time.perf_counter() - start)
+
+
+def _describe(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__

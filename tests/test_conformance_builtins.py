@@ -1,0 +1,67 @@
+"""Every component the installed plugins register passes the conformance kit (learned ones untrained, small confs:
+conformance is about contracts, not accuracy)."""
+
+import pytest
+import torch
+
+from i2pbench.plugins import default_registry
+from i2pbench.testing import check_component, kitti_frame
+
+# Small versions of the learned stages keep this test fast; the contracts do not depend on width or depth.
+SMALL_CONFS = {
+    ("encoder2d", "superpoint-cnn"): {"descriptor_dim": 32, "channels": (8, 8, 16, 16), "head_channels": 32},
+    ("encoder3d", "pointnet2"): {
+        "descriptor_dim": 32,
+        "num_points": 1024,
+        "sa1": {"npoint": 256, "nsample": 16, "mlp": (16, 16, 32)},
+        "sa2": {"npoint": 64, "nsample": 16, "mlp": (32, 32, 64)},
+        "fp_mlp": (32, 32),
+        "head_mlp": (32,),
+        "groups": 4,
+    },
+    ("exchanger", "attention"): {"descriptor_dim": 32, "num_blocks": 1, "num_heads": 2, "pe_mlp": (16, 32)},
+    ("matcher", "lightglue"): {"descriptor_dim": 32},
+}
+# Known findings, reported to their owners: these stages pass NaN coordinates of a corrupt scan through to their
+# output instead of skipping those points or refusing the scan. The pipeline's own contract check still turns that
+# into a failed frame (and the KITTI and nuScenes readers refuse NaN points), so a run never scores garbage.
+KNOWN_NAN_PASS_THROUGH = {
+    ("extractor3d", "depth"),
+    ("extractor3d", "reflectance"),
+    ("extractor3d", "depth+reflectance"),
+    ("extractor3d", "random"),
+    ("encoder3d", "pointnet2"),
+}
+
+COMPONENTS = sorted((kind, name) for kind, table in default_registry().components.items() for name in table)
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # the CI machine is small and shared
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.mark.parametrize(("kind", "name"), COMPONENTS, ids=[f"{k}-{n}" for k, n in COMPONENTS])
+def test_builtin_component_conforms(kind, name):
+    report = check_component(default_registry().component(kind, name), SMALL_CONFS.get((kind, name)))
+    known = [
+        p for p in report if (kind, name) in KNOWN_NAN_PASS_THROUGH and p.check == "bad input" and "NaN" in p.message
+    ]
+    unexpected = [p for p in report if p not in known]
+    assert not unexpected, str(report)
+    if known:
+        pytest.xfail(f"known: {known[0].message}")
+
+
+def test_every_stage_kind_has_a_builtin_to_check():
+    assert {kind for kind, _ in COMPONENTS} == set(default_registry().components)
+
+
+@pytest.mark.parametrize(("kind", "name"), [("extractor2d", "lsd"), ("solver", "epnp-ransac")])
+def test_builtins_conform_on_a_real_kitti_frame(shared_data, kind, name):
+    frame = kitti_frame(str(shared_data / "kitti_odometry"), "01/000000")
+    report = check_component(default_registry().component(kind, name), frame=frame)
+    assert [p for p in report if p.check != "bad input"] == [], str(report)
