@@ -92,3 +92,13 @@ def test_normalisations():
     uv = torch.tensor([[0.0, 0.0], [100.0, 25.0], [200.0, 50.0]])
     expected = torch.tensor([[-1.0, -0.25], [0.0, 0.0], [1.0, 0.25]])
     torch.testing.assert_close(normalize_pixels(uv, (200, 50)), expected)
+
+
+def test_a_half_size_image_samples_like_stride_16():
+    # image_scale 0.5 maps u' = (u + 0.5) / 2 - 0.5, then stride 8: cell j is centred on pixel 16j + 7.5
+    fmap = coordinate_map(3, 4)
+    uv = torch.tensor([[7.5, 7.5], [16 * 3 + 7.5, 16 * 2 + 7.5], [20.0, 30.0]])
+    expected = torch.tensor([[0.0, 0.0], [3.0, 2.0], [(20 - 7.5) / 16, (30 - 7.5) / 16]])
+    torch.testing.assert_close(sample_descriptors(fmap, uv, 16), expected)
+    u_resized = (uv[:, :1] + 0.5) * 0.5 - 0.5
+    torch.testing.assert_close(sample_descriptors(fmap, uv, 16)[:, 0], (u_resized[:, 0] - 3.5) / 8)

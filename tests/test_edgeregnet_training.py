@@ -133,3 +133,9 @@ def test_shared_attention_weights_halve_the_blocks(share):
     per_block = sum(p.numel() for p in blocks[0].parameters())
     single = sum(p.numel() for p in blocks[0].self2d.parameters())
     assert per_block == (2 if share else 4) * single
+
+
+def test_a_resized_image_gives_descriptors_for_every_pixel():
+    frame, kp2d, _ = tiny_frame()
+    encoder = SuperPointEncoder({**TINY["encoder2d"], "image_scale": 0.5})
+    assert encoder(frame, kp2d).shape == (len(kp2d), D)

@@ -3,7 +3,8 @@
 Coordinate mapping: pixel centres sit at integer (u, v) (the convention of LSD and of `Keypoints2D`). Descriptor cell
 (i, j) pools pixels [8j, 8j + 8) x [8i, 8i + 8), so its centre is at u = 8j + 3.5, v = 8i + 3.5. A pixel therefore
 lies at cell coordinate x = (u - 3.5) / 8, which `grid_sample(align_corners=True)` reads at 2x / (Wc - 1) - 1;
-pixels beyond the outer cell centres take the border cell's value.
+pixels beyond the outer cell centres take the border cell's value. With `image_scale` s the image is resized first
+(pixel centres map as u' = (u + 0.5) s - 0.5), which is the same mapping with stride 8 / s.
 """
 
 from __future__ import annotations
@@ -27,14 +28,14 @@ def to_grey(image: np.ndarray, device: torch.device) -> torch.Tensor:
     return grey[None, None]
 
 
-def pixel_to_grid(uv: torch.Tensor, size: tuple[int, int], stride: int) -> torch.Tensor:
+def pixel_to_grid(uv: torch.Tensor, size: tuple[int, int], stride: float) -> torch.Tensor:
     """pixel coordinates [M x 2] -> grid_sample coordinates [M x 2] on a (Wc, Hc) map (align_corners=True)."""
     cells = (uv - (stride - 1) / 2) / stride
     extent = torch.tensor([max(size[0] - 1, 1), max(size[1] - 1, 1)], device=uv.device, dtype=uv.dtype)
     return cells / extent * 2 - 1
 
 
-def sample_descriptors(fmap: torch.Tensor, uv: torch.Tensor, stride: int) -> torch.Tensor:
+def sample_descriptors(fmap: torch.Tensor, uv: torch.Tensor, stride: float) -> torch.Tensor:
     """bilinear lookup of fmap [1 x D x Hc x Wc] at pixels uv [M x 2] -> [M x D]."""
     grid = pixel_to_grid(uv, (fmap.shape[-1], fmap.shape[-2]), stride)
     out = F.grid_sample(fmap, grid[None, None], mode="bilinear", padding_mode="border", align_corners=True)
@@ -53,6 +54,7 @@ class SuperPointEncoder(LearnedComponent, Encoder2D):
         "descriptor_dim": 256,  # D, the output width
         "channels": (64, 64, 128, 128),  # widths of the four VGG stages (pooling after the first three: stride 8)
         "head_channels": 256,  # the 3x3 conv of the descriptor head, before the 1x1 conv to D
+        "image_scale": 1.0,  # resize the image before the CNN: 0.5 quarters its cost (descriptor stride 16 px)
         "normalize_image": True,  # zero mean / unit std per image (robust to exposure); False: grey in [0, 1]
         "normalize_descriptors": True,  # L2-normalise sampled descriptors, as SuperPoint and SuperGlue's input
     }
@@ -78,8 +80,11 @@ class SuperPointEncoder(LearnedComponent, Encoder2D):
 
     def forward(self, grey: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
         """grey [1 x 1 x H x W] in [0, 1], uv [M x 2] pixels -> descriptors [M x D]."""
+        scale = self.conf["image_scale"]
+        if scale != 1.0:
+            grey = F.interpolate(grey, scale_factor=scale, mode="bilinear", antialias=True)
         if self.conf["normalize_image"]:
             grey = (grey - grey.mean()) / grey.std().clamp(min=1e-3)
         fmap = self.head(self.backbone(grey))
-        desc = sample_descriptors(fmap, uv, self.stride)
+        desc = sample_descriptors(fmap, uv, self.stride / scale)
         return F.normalize(desc, dim=-1) if self.conf["normalize_descriptors"] else desc
