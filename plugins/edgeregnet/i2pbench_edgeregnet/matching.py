@@ -16,7 +16,17 @@ import numpy as np
 import torch
 from torch import nn
 
-from i2pbench.api import Component, Features, Frame, Keypoints2D, Keypoints3D, LearnedComponent, Matcher, Matches
+from i2pbench.api import (
+    Component,
+    Features,
+    Frame,
+    Keypoints2D,
+    Keypoints3D,
+    LearnedComponent,
+    Matcher,
+    Matches,
+    StageError,
+)
 from i2pbench.correspondence import ground_truth_matches
 
 from .loss import edgeregnet_loss, log_assignment
@@ -68,6 +78,7 @@ class LightGlueMatcher(LearnedComponent, Matcher):
 
     def __init__(self, conf: dict[str, Any] | None = None) -> None:
         super().__init__(conf)
+        self.conf["weights"] = {**self.default_conf["weights"], **self.conf["weights"]}  # partial override
         dim = self.conf["descriptor_dim"]
         self.proj2d, self.proj3d = nn.Linear(dim, dim), nn.Linear(dim, dim)
         self.matchability2d, self.matchability3d = nn.Linear(dim, 1), nn.Linear(dim, 1)
@@ -85,7 +96,7 @@ class LightGlueMatcher(LearnedComponent, Matcher):
 
     def _run(self, features: Features) -> tuple[torch.Tensor, ...]:
         if features.desc2d is None or features.desc3d is None:
-            raise ValueError(f"{self.label} needs descriptors on both sides")
+            raise StageError(self.label, "needs descriptors on both sides (an encoder2d and an encoder3d)")
         device = next(self.parameters()).device
         return nn.Module.__call__(self, features.desc2d.to(device), features.desc3d.to(device))
 
@@ -103,7 +114,7 @@ class LightGlueMatcher(LearnedComponent, Matcher):
         """eq. (15) on this frame; frame must carry T_gt."""
         log_p, z2d, z3d, z_fov = self._run(features)
         gt = ground_truth_matches(frame, kp2d, kp3d, radius_px=self.conf["eps_c"])
-        dev, w = log_p.device, {**self.default_conf["weights"], **self.conf["weights"]}
+        dev, w = log_p.device, self.conf["weights"]
         return edgeregnet_loss(
             log_p,
             z2d,
