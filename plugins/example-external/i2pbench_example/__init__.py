@@ -1,0 +1,1 @@
+"""An example third-party i2pbench plugin: `harris` image corners and `curvature` LiDAR points."""
