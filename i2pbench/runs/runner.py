@@ -28,6 +28,7 @@ from ..weights import apply_checkpoint, select_checkpoint
 from .store import ResultsStore, cache_key
 
 Progress = Callable[[int], None]
+UNTRAINED_SEED = 0
 
 
 @dataclass
@@ -57,12 +58,19 @@ def prepare(registry: Registry, combinations: Sequence[Combination], weights: st
     shipped = [path for path, _ in registry.weights]
     jobs = []
     for combination in combinations:
-        pipeline = Pipeline.build(registry, combination)
+        pipeline = _build(registry, combination)
         checkpoint = select_checkpoint(pipeline, weights, shipped)
         if checkpoint is not None:
             apply_checkpoint(pipeline, checkpoint)
         jobs.append(Job(combination, pipeline.eval()))
     return jobs
+
+
+def _build(registry: Registry, combination: Combination) -> Pipeline:
+    """Build with a fixed torch seed, so an `untrained` row means the same initial weights in every run."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(UNTRAINED_SEED)
+        return Pipeline.build(registry, combination)
 
 
 def frame_key(dataset: Dataset, frame_id: str, job: Job, protocol: Protocol) -> str:
@@ -88,26 +96,26 @@ def run_job(
     warmup: int = 1,
     progress: Progress | None = None,
     invocation: str = "",
-) -> list[pd.DataFrame]:
-    """Run one combination over frames, reusing those already stored; returns one record table per frame.
+) -> list[dict[str, Any]]:
+    """Run one combination over frames, reusing those already stored; returns one record per frame.
 
     The warm-up runs just before the first frame that is actually computed, so a fully cached job costs no
     pipeline run at all.
     """
-    tables, warm = [], warmup == 0
+    records, warm = [], warmup == 0
     for frame_id in frame_ids:
         key = frame_key(dataset, frame_id, job, protocol)
-        table = None if overwrite else store.get(key)
-        if table is None:
+        record = None if overwrite else store.get(key)
+        if record is None:
             if not warm:
                 _warm_up(job, dataset, protocol, frame_id, warmup)
                 warm = True
-            record = run_frame(job, dataset, frame_id, protocol)
-            table = store.put(key, {**record, "invocation": invocation})
-        tables.append(table)
+            record = {**run_frame(job, dataset, frame_id, protocol), "invocation": invocation}
+            store.put(key, record)
+        records.append({**record, **_labels(job)})  # the key holds resolved configs: labels follow this spelling
         if progress:
             progress(1)
-    return tables
+    return records
 
 
 def _warm_up(job: Job, dataset: Dataset, protocol: Protocol, frame_id: str, times: int) -> None:
@@ -136,6 +144,10 @@ def run_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> 
     return _record(job, dataset, frame_id, protocol, outcome, frame.T_gt, loaded - start, time.perf_counter() - start)
 
 
+def _labels(job: Job) -> dict[str, str]:
+    return {"combination": job.label, "combination_key": job.combination.key()}
+
+
 def _record(
     job: Job,
     dataset: Dataset,
@@ -152,8 +164,7 @@ def _record(
         "dataset": dataset.name,
         "split": dataset.split,
         "frame_id": frame_id,
-        "combination": job.label,
-        "combination_key": job.combination.key(),
+        **_labels(job),
         **{kind: job.combination.name(kind) for kind in STAGE_ORDER},
         "weights": job.weights,
         "weights_trained_on": job.pipeline.weights_meta.get("trained_on", ""),
@@ -196,9 +207,9 @@ def run_grid(
     """Run every combination over the split; returns this grid's per-frame records (cached ones included)."""
     jobs = prepare(registry, combinations, weights)
     frame_ids = list(frame_ids if frame_ids is not None else dataset.frame_ids())
-    tables: list[pd.DataFrame] = []
+    records: list[dict[str, Any]] = []
     for job in jobs:
-        tables += run_job(
+        records += run_job(
             job, dataset, frame_ids, protocol, store, overwrite=overwrite, progress=progress, invocation=invocation
         )
-    return pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()
+    return pd.DataFrame(records)

@@ -18,6 +18,8 @@ from pathlib import Path
 from typing import Any
 
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 
 PARQUET_MAGIC = b"PAR1"
 TEMP_SUFFIX = ".tmp"
@@ -43,25 +45,24 @@ class ResultsStore:
     def has(self, key: str) -> bool:
         return self.path(key).is_file()
 
-    def put(self, key: str, record: dict[str, Any]) -> pd.DataFrame:
-        """Store one frame's record; returns it as the one-row table that was written."""
-        frame = pd.DataFrame([record])
+    def put(self, key: str, record: dict[str, Any]) -> None:
+        """Store one frame's record: pyarrow directly, uncompressed, as pandas' writer costs ~5x more per frame."""
+        table = pa.Table.from_pylist([record])
         tmp = self.frames_dir / f".{key}.{os.getpid()}{TEMP_SUFFIX}"
         try:
-            frame.to_parquet(tmp, index=False)
+            pq.write_table(table, tmp, compression="none", write_statistics=False)  # one row: nothing to gain
             os.replace(tmp, self.path(key))
         finally:
             tmp.unlink(missing_ok=True)
-        return frame
 
-    def get(self, key: str) -> pd.DataFrame | None:
+    def get(self, key: str) -> dict[str, Any] | None:
         """The stored record, or None when absent or unreadable (then reported and set aside for recomputing)."""
         path = self.path(key)
         if not path.is_file():
             return None
         try:
-            return pd.read_parquet(path)
-        except FileNotFoundError:  # removed meanwhile, e.g. by a concurrent --overwrite
+            return pq.read_table(path).to_pylist()[0]
+        except FileNotFoundError:  # removed between the check and the read
             return None
         except Exception as exc:  # pyarrow raises several types for a damaged file; any of them means recompute
             self._set_aside(path, exc)
@@ -71,8 +72,7 @@ class ResultsStore:
         """All records (or those with the given keys that exist and are readable), one row per frame."""
         if keys is None:
             keys = sorted(p.stem for p in self.frames_dir.glob("*.parquet") if not p.name.startswith("."))
-        tables = [t for t in (self.get(k) for k in keys) if t is not None]
-        return pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()
+        return pd.DataFrame([r for r in (self.get(k) for k in keys) if r is not None])
 
     def _set_aside(self, path: Path, exc: Exception) -> None:
         aside = path.with_name(path.name + CORRUPT_SUFFIX)

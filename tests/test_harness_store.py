@@ -1,0 +1,137 @@
+"""The results store and the runner's caching: what is done is reused, damaged files are recomputed, history is kept."""
+
+import os
+
+import pandas as pd
+import pytest
+import toy_plugin
+
+from i2pbench.pipeline import Combination
+from i2pbench.plugins import build_registry
+from i2pbench.protocol import Protocol
+from i2pbench.runs import runner
+from i2pbench.runs.invocation import Invocation, history
+from i2pbench.runs.runner import frame_key, prepare, run_grid
+from i2pbench.runs.store import ResultsStore
+
+BASE = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
+
+
+@pytest.fixture
+def registry(monkeypatch):
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    return build_registry((toy_plugin,))
+
+
+@pytest.fixture
+def counted(monkeypatch):
+    """Counts frames actually computed (not read from the store)."""
+    calls = []
+    real = runner.run_frame
+
+    def run_frame(job, dataset, frame_id, protocol):
+        calls.append(frame_id)
+        return real(job, dataset, frame_id, protocol)
+
+    monkeypatch.setattr(runner, "run_frame", run_frame)
+    return calls
+
+
+def _run(registry, store, **kwargs):
+    dataset = registry.dataset("toy")("test")
+    return run_grid(registry, [Combination(BASE)], dataset, Protocol(), store, **kwargs)
+
+
+def test_put_then_get_round_trips_a_record(tmp_path):
+    store = ResultsStore(tmp_path)
+    record = {"frame_id": "a", "rte_m": 0.5, "T_pred": [1.0, 0.0], "error": "", "t_encoder2d_s": float("nan")}
+    store.put("k", record)
+    got = store.get("k")
+    assert got["frame_id"] == "a" and got["rte_m"] == 0.5 and got["T_pred"] == [1.0, 0.0]
+    assert pd.isna(got["t_encoder2d_s"])
+    assert store.get("absent") is None
+    assert [p.name for p in (tmp_path / "frames").iterdir()] == ["k.parquet"]  # no temp file left behind
+
+
+def test_a_rerun_reuses_every_stored_frame_and_overwrite_recomputes(registry, tmp_path, counted):
+    store = ResultsStore(tmp_path)
+    first = _run(registry, store, invocation="one")
+    assert counted == ["a", "bad", "c"]
+    second = _run(registry, store, invocation="two")
+    assert counted == ["a", "bad", "c"]  # nothing recomputed
+    assert list(second["invocation"]) == ["one"] * 3
+    pd.testing.assert_frame_equal(first, second)
+    third = _run(registry, store, overwrite=True, invocation="three")
+    assert counted == ["a", "bad", "c"] * 2
+    assert list(third["invocation"]) == ["three"] * 3
+
+
+def test_a_truncated_result_is_reported_by_path_and_recomputed(registry, tmp_path, counted, capsys):
+    store = ResultsStore(tmp_path)
+    _run(registry, store)
+    job = prepare(registry, [Combination(BASE)])[0]
+    path = store.path(frame_key(registry.dataset("toy")("test"), "c", job, Protocol()))
+    path.write_bytes(path.read_bytes()[:40])  # as a power cut could leave it
+    records = _run(registry, store)
+    assert counted == ["a", "bad", "c", "c"]
+    assert str(path) in capsys.readouterr().err
+    assert records.set_index("frame_id").loc["c", "status"] == "ok"
+    assert path.with_name(path.name + ".corrupt").is_file()  # kept aside for inspection
+    assert store.get(path.stem) is not None
+
+
+def test_stray_temp_files_are_ignored_and_dead_writers_temps_swept(tmp_path):
+    store = ResultsStore(tmp_path)
+    store.put("k", {"frame_id": "a"})
+    dead_pid = 2**22 + 12345  # above the default pid_max: no such process
+    dead = tmp_path / "frames" / f".k2.{dead_pid}.tmp"
+    live = tmp_path / "frames" / f".k3.{os.getpid()}.tmp"
+    for temp in (dead, live):
+        temp.write_bytes(b"PAR1 half written")
+    assert list(store.load()["frame_id"]) == ["a"]
+    ResultsStore(tmp_path)  # a new run opening the store
+    assert not dead.exists() and live.exists()
+
+
+def test_the_cache_key_follows_the_resolved_config(registry):
+    dataset, protocol = registry.dataset("toy")("test"), Protocol()
+    learned = {**BASE, "encoder2d": "linear"}
+    default, explicit, other = prepare(
+        registry,
+        [
+            Combination(learned),
+            Combination(learned, {"encoder2d": {"dim": 4}}),
+            Combination(learned, {"encoder2d": {"dim": 8}}),
+        ],
+    )
+    assert frame_key(dataset, "a", default, protocol) == frame_key(dataset, "a", explicit, protocol)  # 4 is the default
+    assert frame_key(dataset, "a", default, protocol) != frame_key(dataset, "a", other, protocol)
+    assert frame_key(dataset, "a", default, protocol) != frame_key(dataset, "a", default, Protocol(seed=1))
+    assert frame_key(dataset, "a", default, protocol) != frame_key(dataset, "c", default, protocol)
+
+
+def test_each_invocation_keeps_its_own_metadata(tmp_path):
+    first = Invocation(tmp_path, {"argv": ["one"]})
+    second = Invocation(tmp_path, {"argv": ["two"]})
+    second.finish(computed=3)
+    runs = history(tmp_path)
+    assert [r["argv"] for r in runs] == [["one"], ["two"]]
+    assert [r["status"] for r in runs] == ["running", "finished"]  # the first never finished: it was killed
+    assert runs[1]["computed"] == 3 and first.id != second.id
+
+
+def test_an_equivalent_spelling_reuses_the_frames_under_its_own_label(registry, tmp_path, counted):
+    store, dataset = ResultsStore(tmp_path), registry.dataset("toy")("test")
+    learned = {**BASE, "encoder2d": "linear"}
+    run_grid(registry, [Combination(learned)], dataset, Protocol(), store)
+    spelled = run_grid(registry, [Combination(learned, {"encoder2d": {"dim": 4}})], dataset, Protocol(), store)
+    assert counted == ["a", "bad", "c"]
+    assert set(spelled["combination"]) == {"grid > first > linear > truth > truth [encoder2d.dim=4]"}
+
+
+def test_untrained_rows_start_from_the_same_weights_in_every_run(registry):
+    learned = Combination({**BASE, "encoder2d": "linear"})
+    (a,), (b,) = prepare(registry, [learned]), prepare(registry, [learned])
+    assert a.weights == b.weights == "untrained"
+    first, second = (dict(j.pipeline.stages["encoder2d"].named_parameters()) for j in (a, b))
+    assert all((first[name] == second[name]).all() for name in first)
