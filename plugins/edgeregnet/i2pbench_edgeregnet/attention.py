@@ -106,7 +106,7 @@ class AttentionExchanger(LearnedComponent, Exchanger):
         d2, d3 = nn.Module.__call__(
             self, features.desc2d.to(device), features.desc3d.to(device), normalize_pixels(uv, frame.image_size), xyz
         )
-        return Features(desc2d=d2, desc3d=d3)
+        return Features(desc2d=d2.float(), desc3d=d3.float())
 
     def forward(
         self, d2: torch.Tensor, d3: torch.Tensor, uv: torch.Tensor, xyz: torch.Tensor

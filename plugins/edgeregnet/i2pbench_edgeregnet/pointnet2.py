@@ -146,7 +146,7 @@ class PointNet2Encoder(LearnedComponent, Encoder3D):
             points = points[rng.choice(len(points), self.conf["num_points"], replace=False)]
         cloud = torch.from_numpy(np.asarray(points, np.float32)).to(device)
         edges = np.concatenate([kp3d.xyz, kp3d.reflectance[:, None]], 1).astype(np.float32)
-        return nn.Module.__call__(self, cloud, torch.from_numpy(edges).to(device))
+        return nn.Module.__call__(self, cloud, torch.from_numpy(edges).to(device)).float()
 
     def forward(self, cloud: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
         """cloud [N x 4], edge points [M x 4] (xyz, reflectance; LiDAR frame) -> descriptors [M x D]."""

@@ -76,7 +76,7 @@ class SuperPointEncoder(LearnedComponent, Encoder2D):
     def __call__(self, frame: Frame, kp2d: Keypoints2D) -> torch.Tensor:
         device = next(self.parameters()).device
         uv = torch.from_numpy(np.asarray(kp2d.uv, np.float32)).to(device)
-        return nn.Module.__call__(self, to_grey(frame.image, device), uv)
+        return nn.Module.__call__(self, to_grey(frame.image, device), uv).float()
 
     def forward(self, grey: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
         """grey [1 x 1 x H x W] in [0, 1], uv [M x 2] pixels -> descriptors [M x D]."""
