@@ -8,6 +8,7 @@ from i2pbench.hookspecs import Register
 from .attention import AttentionExchanger
 from .matching import LightGlueMatcher
 from .pointnet2 import PointNet2Encoder
+from .presets import register_presets  # noqa: F401
 from .superpoint import SuperPointEncoder
 
 
