@@ -16,17 +16,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     synth.add_argument("--test", type=int, default=None, help="frames in the test split")
     synth.add_argument("--seed", type=int, default=0)
     synth.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
-    synth.add_argument("--quiet", action="store_true")
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..data.synthetic.dataset import SyntheticStreets
+    from ..data.synthetic.dataset import SyntheticStreets, generate
 
-    conf = {"seed": args.seed}
-    for key, value in (("root", args.root), ("n_train", args.train), ("n_val", args.val), ("n_test", args.test)):
-        if value is not None:
-            conf[key] = value
-    dataset = SyntheticStreets("train", conf)
-    root = dataset.ensure(workers=args.workers, progress=not args.quiet)
-    print(f"synthetic dataset ready at {root}", file=sys.stderr)
+    frames = dict(SyntheticStreets.default_conf["frames"])
+    frames.update({k: v for k, v in (("train", args.train), ("val", args.val), ("test", args.test)) if v is not None})
+    root = generate(args.root, frames["train"], frames["val"], frames["test"], seed=args.seed, workers=args.workers)
+    print(f"synthetic dataset ready at {root} ({frames})", file=sys.stderr)
     return 0
