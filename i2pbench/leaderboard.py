@@ -112,7 +112,7 @@ def write(board: pd.DataFrame, stem: str | Path) -> list[Path]:
     stem.parent.mkdir(parents=True, exist_ok=True)
     paths = [stem.with_name(f"{stem.name}.{ext}") for ext in ("csv", "md", "parquet")]
     writers = (
-        lambda p: board.to_csv(p, index=False),
+        lambda p: board.to_csv(p, index=False, na_rep="nan"),  # an explicit NaN, so "" stays an empty string
         lambda p: p.write_text(to_markdown(board) + "\n"),
         lambda p: board.to_parquet(p, index=False),
     )
@@ -128,4 +128,4 @@ def read(path: str | Path) -> pd.DataFrame:
     path = Path(path)
     if path.suffix == ".parquet":
         return pd.read_parquet(path)
-    return pd.read_csv(path, keep_default_na=False, na_values=["", "nan", "NaN"])
+    return pd.read_csv(path, keep_default_na=False, na_values=["nan"])

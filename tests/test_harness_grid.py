@@ -1,0 +1,112 @@
+"""Combinations: per-stage lists run as their product, YAML grid files, and the paper's ablation presets."""
+
+import argparse
+
+import pytest
+import toy_plugin
+
+from i2pbench.commands.run import _combinations, parse_data_conf
+from i2pbench.errors import PluginError
+from i2pbench.grid import base_combinations, expand, load_grid_file
+from i2pbench.plugins import build_registry, default_registry
+from i2pbench.runs.runner import prepare
+
+CLASSIC = {"extractor2d": "lsd", "extractor3d": "depth+reflectance", "matcher": "oracle", "solver": "epnp-ransac"}
+LEARNED = ("superpoint-cnn", "pointnet2", "lightglue", "epnp-ransac")
+
+
+def _names(combinations, *kinds):
+    return [tuple(c.name(k) for k in kinds) for c in combinations]
+
+
+def _args(**options):
+    """The namespace `i2pbench run` parses, with no stage named unless given."""
+    stages = ("extractor2d", "extractor3d", "encoder2d", "encoder3d", "exchanger", "matcher", "solver")
+    return argparse.Namespace(**{**dict.fromkeys(stages), "preset": None, "grid": None, "conf": [], **options})
+
+
+def test_lists_run_as_their_product_in_order():
+    combos = expand([CLASSIC], {"extractor2d": ["lsd", "canny"], "solver": ["epnp-ransac", "poselib", "epnp-ransac"]})
+    assert _names(combos, "extractor2d", "solver") == [
+        ("lsd", "epnp-ransac"),
+        ("lsd", "poselib"),
+        ("canny", "epnp-ransac"),
+        ("canny", "poselib"),
+    ]  # the repeated solver is dropped
+    assert {c.name("matcher") for c in combos} == {"oracle"}
+
+
+def test_a_grid_file_gives_base_product_and_confs(tmp_path):
+    path = tmp_path / "grid.yaml"
+    path.write_text(
+        "base: {extractor3d: depth+reflectance, matcher: oracle, exchanger: null}\n"
+        "grid:\n  extractor2d: [lsd, canny, sobel]\n  solver: [epnp-ransac, poselib]\n"
+        "confs: {solver: {seed: 3}}\n"
+    )
+    grid = load_grid_file(path)
+    assert grid.base == {"extractor3d": "depth+reflectance", "matcher": "oracle", "exchanger": "none"}
+    combos = expand([grid.base], grid.grid, grid.confs)
+    assert len(combos) == 6
+    assert all(c.confs == {"solver": {"seed": 3}} for c in combos)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [("grid: {extractor: [lsd]}\n", "unknown stage kinds \\['extractor'\\]"), ("stages: {}\n", "expected a mapping")],
+)
+def test_a_wrong_grid_file_is_refused_naming_it(tmp_path, text, message):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(PluginError, match=f"bad.yaml.*{message}"):
+        load_grid_file(path)
+
+
+def test_the_cli_merges_grid_file_and_options_with_options_winning(tmp_path, monkeypatch):
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    registry = build_registry((toy_plugin,))
+    path = tmp_path / "grid.yaml"
+    path.write_text(
+        "base: {extractor3d: first, matcher: truth, solver: truth}\ngrid: {extractor2d: [grid, wrong-shape]}\n"
+    )
+    assert len(_combinations(registry, _args(grid=str(path)))) == 2
+    assert _names(_combinations(registry, _args(grid=str(path), extractor2d=["grid"])), "extractor2d") == [("grid",)]
+
+
+def test_named_stages_need_no_default_preset(monkeypatch):
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    registry = build_registry(())
+    assert base_combinations(registry, None, stages_named=True) == [{}]
+    with pytest.raises(PluginError, match="no 'default' preset"):
+        base_combinations(registry, None)
+
+
+def test_data_conf_nests_dotted_keys():
+    assert parse_data_conf(["frames.test=3", "seed=1", "root=/x"]) == {"frames": {"test": 3}, "seed": 1, "root": "/x"}
+
+
+def test_edge_ablation_is_table_iii_with_the_learned_stages_in_every_row():
+    registry = default_registry()
+    combos = expand(registry.preset("edge-ablation").combinations, {})
+    assert _names(combos, "extractor3d", "extractor2d") == [
+        ("random", "random"),
+        ("depth+reflectance", "canny"),
+        ("depth+reflectance", "sobel"),
+        ("reflectance", "lsd"),
+        ("depth", "lsd"),
+        ("depth+reflectance", "lsd"),
+    ]
+    assert set(_names(combos, "encoder2d", "encoder3d", "matcher", "solver")) == {LEARNED}
+    assert {c.name("exchanger") for c in combos} == {"attention"}
+    jobs = prepare(registry, combos)  # every row is a valid pipeline
+    assert all(job.weights == "untrained" or "@" in job.weights for job in jobs)
+
+
+def test_exchange_ablation_is_table_iv():
+    registry = default_registry()
+    combos = expand(registry.preset("exchange-ablation").combinations, {})
+    assert _names(combos, "extractor2d", "extractor3d", "exchanger") == [
+        ("lsd", "depth+reflectance", "none"),
+        ("lsd", "depth+reflectance", "attention"),
+    ]
+    assert set(_names(combos, "encoder2d", "encoder3d", "matcher", "solver")) == {LEARNED}
+    prepare(registry, combos)
