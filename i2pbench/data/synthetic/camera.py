@@ -33,7 +33,10 @@ def render(caster: Caster, camera: Camera, lidar_pose: np.ndarray, rng: np.rando
     origin, dirs = pixel_rays(camera, lidar_pose)
     hits = caster.cast(origin, dirs)
     light = caster.scene.lighting
-    radiance = _sky(dirs, light)
+    radiance = np.zeros_like(dirs)
+    sky = np.ones(len(dirs), bool)
+    sky[hits.rows] = False
+    radiance[sky] = _sky(dirs[sky], light)
     albedo, _ = surface(caster.scene, hits)
     shaded = _shade(caster, hits, albedo, light)
     haze = (1 - np.exp(-hits.t / 700.0))[:, None]
@@ -68,5 +71,5 @@ def _develop(radiance: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     img = np.clip(radiance * exposure, 0, 1).astype(np.float32)
     img = cv2.GaussianBlur(img, (0, 0), 0.6)
     img = img ** (1 / 2.2)
-    img += rng.normal(0, 0.01, img.shape).astype(np.float32)
+    img += rng.normal(0, 0.015, img.shape).astype(np.float32)
     return np.clip(img * 255 + 0.5, 0, 255).astype(np.uint8)

@@ -14,7 +14,7 @@ def scan(caster: Caster, lidar: Lidar, rng: np.random.Generator) -> tuple[np.nda
     Rows are ring by ring, each ring in sweep order (KITTI's file order); misses, returns beyond max range and a few
     random drop-outs are removed without reordering, as in a real sweep.
     """
-    dirs = lidar.directions().reshape(-1, 3)
+    dirs = lidar.directions.reshape(-1, 3)
     ring = np.repeat(np.arange(len(lidar.elevations_deg), dtype=np.int16), lidar.steps)
     step = np.tile(np.arange(lidar.steps), len(lidar.elevations_deg))
     R, origin = lidar.pose[:3, :3], lidar.pose[:3, 3]

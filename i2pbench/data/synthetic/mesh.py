@@ -26,27 +26,20 @@ class Mesh:
 
 
 class MeshBuilder:
-    """Accumulates quads, boxes and prisms; `build()` returns one Mesh for a single ray-casting geometry."""
+    """Accumulates quads, boxes and prisms; `build()` returns one Mesh for a single ray-casting geometry.
+
+    Quads are stored as rows of numbers and turned into triangles in one vectorised step, because a scene has
+    thousands of them and per-quad numpy calls dominated the scene-building time.
+    """
 
     def __init__(self) -> None:
-        self._verts: list[np.ndarray] = []
-        self._tris: list[np.ndarray] = []
-        self._frames: list[np.ndarray] = []  # [T x 4 x 3]: origin, u, v, normal
-        self._mats: list[np.ndarray] = []
-        self._n = 0
+        self._quads: list[tuple] = []  # (p0, a, b, origin, u_axis, v_axis, material)
+        self._soups: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []  # (verts, tris, frames, mats)
 
     def quad(self, p0, a, b, material: int, origin=None, u_axis=None, v_axis=None) -> None:
         """Parallelogram p0, p0+a, p0+a+b, p0+b; texture frame defaults to (p0, a/|a|, b/|b|)."""
-        p0, a, b = (np.asarray(x, dtype=np.float64) for x in (p0, a, b))
-        self._verts.append(np.stack([p0, p0 + a, p0 + a + b, p0 + b]))
-        self._tris.append(np.array([[0, 1, 2], [0, 2, 3]]) + self._n)
-        self._n += 4
-        u = _unit(a) if u_axis is None else np.asarray(u_axis, dtype=np.float64)
-        v = _unit(b) if v_axis is None else np.asarray(v_axis, dtype=np.float64)
-        o = p0 if origin is None else np.asarray(origin, dtype=np.float64)
-        frame = np.stack([o, u, v, _unit(np.cross(a, b))])
-        self._frames.append(np.repeat(frame[None], 2, axis=0))
-        self._mats.append(np.full(2, material, np.int32))
+        self._quads.append((p0, a, b, p0 if origin is None else origin, a if u_axis is None else u_axis,
+                            b if v_axis is None else v_axis, material))
 
     def box(
         self, center, size, yaw: float, z0: float, side: int, top: int | None = None, bottom_ref: float = 0.0
@@ -74,7 +67,7 @@ class MeshBuilder:
         chord = 2 * radius * np.sin(np.pi / sides)
         for i in range(sides):
             edge = ring[i + 1] - ring[i]
-            origin = base + ring[i] - _unit(edge) * chord * i
+            origin = base + ring[i] - _units(edge) * chord * i
             origin[2] = 0.0
             self.quad(base + ring[i], edge, [0, 0, height], material, origin=origin, v_axis=[0.0, 0.0, 1.0])
         self.quad(base + [0, 0, height] - [radius, radius, 0], [2 * radius, 0, 0], [0, 2 * radius, 0], material)
@@ -83,24 +76,30 @@ class MeshBuilder:
         """Arbitrary triangles textured by a shared planar projection (u = u_axis, v = world z)."""
         v = np.asarray(vertices, dtype=np.float64)
         t = np.asarray(triangles, dtype=np.int64)
-        normals = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
-        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
         frame = np.zeros((len(t), 4, 3))
         frame[:, 1] = u_axis
         frame[:, 2] = [0.0, 0.0, 1.0]
-        frame[:, 3] = normals
-        self._verts.append(v)
-        self._tris.append(t + self._n)
-        self._n += len(v)
-        self._frames.append(frame)
-        self._mats.append(np.full(len(t), material, np.int32))
+        frame[:, 3] = _units(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]))
+        self._soups.append((v, t, frame, np.full(len(t), material, np.int32)))
+
+    def _quad_soup(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        rows = [np.asarray(x, dtype=np.float64) for x in zip(*(q[:6] for q in self._quads), strict=True)]
+        p0, a, b, origin, u_axis, v_axis = (np.broadcast_to(r, (len(self._quads), 3)) for r in rows)
+        verts = np.stack([p0, p0 + a, p0 + a + b, p0 + b], axis=1).reshape(-1, 3)
+        base = 4 * np.arange(len(p0))[:, None, None]
+        tris = (np.array([[0, 1, 2], [0, 2, 3]])[None] + base).reshape(-1, 3)
+        frame = np.stack([origin, _units(u_axis), _units(v_axis), _units(np.cross(a, b))], axis=1)
+        mats = np.array([q[6] for q in self._quads], np.int32)
+        return verts, tris, np.repeat(frame, 2, axis=0), np.repeat(mats, 2)
 
     def build(self) -> Mesh:
-        frames = np.concatenate(self._frames)
+        soups = ([self._quad_soup()] if self._quads else []) + self._soups
+        offsets = np.cumsum([0] + [len(s[0]) for s in soups[:-1]])
+        frames = np.concatenate([s[2] for s in soups])
         return Mesh(
-            vertices=np.concatenate(self._verts).astype(np.float32),
-            triangles=np.concatenate(self._tris).astype(np.uint32),
-            material=np.concatenate(self._mats),
+            vertices=np.concatenate([s[0] for s in soups]).astype(np.float32),
+            triangles=np.concatenate([s[1] + o for s, o in zip(soups, offsets, strict=True)]).astype(np.uint32),
+            material=np.concatenate([s[3] for s in soups]),
             origin=frames[:, 0],
             u_axis=frames[:, 1],
             v_axis=frames[:, 2],
@@ -108,5 +107,5 @@ class MeshBuilder:
         )
 
 
-def _unit(x: np.ndarray) -> np.ndarray:
-    return x / np.linalg.norm(x)
+def _units(x: np.ndarray) -> np.ndarray:
+    return x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)

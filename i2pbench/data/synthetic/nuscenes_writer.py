@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from functools import cache
 from pathlib import Path
 
 import cv2
@@ -51,6 +52,7 @@ def _matrix(record: dict) -> np.ndarray:
     return T
 
 
+@cache
 def rig() -> tuple[Lidar, Camera]:
     """HDL-32E (ring 0 = -30.67 deg) and CAM_FRONT, posed in the ego frame (= the scene's world frame)."""
     lidar = Lidar(elevations_deg=np.linspace(-30.67, 10.67, 32), pose=_matrix(LIDAR_RECORD), steps=1080,

@@ -9,7 +9,7 @@ convention recovers the rendering camera to the last bit.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, cached_property
 
 import numpy as np
 
@@ -48,6 +48,7 @@ class Lidar:
     max_range: float = 80.0  # KITTI's scans stop near 80 m
     range_noise: float = 0.015  # metres, 1 sigma
 
+    @cached_property
     def directions(self) -> np.ndarray:
         """[B x steps x 3] unit rays in the LiDAR frame, ring by ring, each ring in sweep order."""
         el = np.radians(self.elevations_deg)[:, None]
@@ -56,6 +57,7 @@ class Lidar:
         return np.stack(np.broadcast_arrays(np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)), axis=-1)
 
 
+@cache
 def hdl64() -> Lidar:
     """KITTI's HDL-64E: upper block +2 to -8.33 deg (1/3 deg apart), lower block to -24.8 deg; rings top first, each
     starting just left of +x and sweeping anticlockwise (atan2(y, x) rising through +-180 deg) like KITTI's files."""

@@ -26,25 +26,36 @@ class Material:
     params: dict[str, Any] = field(default_factory=dict)
 
 
+_CX, _CY, _CS, _MIX = np.uint32(0x8DA6B343), np.uint32(0xD8163841), 0xCB1AB31F, np.uint32(0x5BD1E995)
+
+
+def _cells(x: np.ndarray) -> np.ndarray:
+    """Lattice cell index as uint32 (negative cells wrap, which is fine for hashing)."""
+    return np.floor(x).astype(np.int64).astype(np.uint32)
+
+
+def _finish(h: np.ndarray) -> np.ndarray:
+    """Avalanche a uint32 hash (modified in place) into a float in [0, 1)."""
+    h ^= h >> np.uint32(13)
+    h *= _MIX
+    h ^= h >> np.uint32(15)
+    return h * (1.0 / 2.0**32)
+
+
 def _hash(ix: np.ndarray, iy: np.ndarray, seed: int) -> np.ndarray:
     """Integer lattice hash in [0, 1): deterministic across platforms (pure uint32 arithmetic)."""
-    h = ix.astype(np.int64).astype(np.uint32) * np.uint32(0x8DA6B343)
-    h ^= iy.astype(np.int64).astype(np.uint32) * np.uint32(0xD8163841)
-    h ^= np.uint32((seed * 0xCB1AB31F) & 0xFFFFFFFF)
-    h ^= h >> np.uint32(13)
-    h *= np.uint32(0x5BD1E995)
-    h ^= h >> np.uint32(15)
-    return h.astype(np.float64) / 2.0**32
+    return _finish(_cells(ix) * _CX ^ _cells(iy) * _CY ^ np.uint32((seed * _CS) & 0xFFFFFFFF))
 
 
 def value_noise(u: np.ndarray, v: np.ndarray, scale: float, seed: int) -> np.ndarray:
     """Smooth noise in [0, 1) with features about `scale` metres wide."""
     x, y = u / scale, v / scale
-    ix, iy = np.floor(x), np.floor(y)
-    fx, fy = x - ix, y - iy
+    fx, fy = x - np.floor(x), y - np.floor(y)
     fx, fy = fx * fx * (3 - 2 * fx), fy * fy * (3 - 2 * fy)
-    a, b = _hash(ix, iy, seed), _hash(ix + 1, iy, seed)
-    c, d = _hash(ix, iy + 1, seed), _hash(ix + 1, iy + 1, seed)
+    hx, hy = _cells(x) * _CX, _cells(y) * _CY ^ np.uint32((seed * _CS) & 0xFFFFFFFF)
+    hx1, hy1 = hx + _CX, _cells(y + 1) * _CY ^ np.uint32((seed * _CS) & 0xFFFFFFFF)
+    a, b = _finish(hx ^ hy), _finish(hx1 ^ hy)
+    c, d = _finish(hx ^ hy1), _finish(hx1 ^ hy1)
     return (a * (1 - fx) + b * fx) * (1 - fy) + (c * (1 - fx) + d * fx) * fy
 
 
@@ -80,7 +91,8 @@ def asphalt(u, v, p):
     """Road surface (u along the road, v lateral) with painted lane lines and optional zebra crossing."""
     rgb, ir = _noisy(u, v, p, amount=0.35, scale=2.0)
     fine = value_noise(u, v, 0.12, p["seed"] + 7) - 0.5
-    rgb *= (1 + 0.15 * fine)[:, None]
+    grain = value_noise(u, v, 0.04, p["seed"] + 8) - 0.5  # aggregate grain: texture edges with no LiDAR edge
+    rgb *= (1 + 0.15 * fine + 0.35 * grain)[:, None]
     # Repaired patches and stains: sharp-edged tone changes, as common on real roads, weak in reflectance.
     patch = np.floor(u / p["patch"][0]) * 7 + np.floor(v / p["patch"][1])
     patched = _hash(patch, np.floor(v / p["patch"][1]), p["seed"] + 9) < p["patch_frac"]
@@ -188,7 +200,8 @@ def foliage(u, v, p):
     """Leaves and grass: high-frequency dark green in the image, bright and speckled to the LiDAR (near infrared)."""
     rgb, ir = _noisy(u, v, p, amount=0.6, scale=p.get("scale", 0.6))
     speck = value_noise(u, v, 0.15, p["seed"] + 11) - 0.5
-    rgb *= (1 + 0.5 * speck)[:, None]
+    leaves = value_noise(u, v, 0.05, p["seed"] + 13) - 0.5  # leaf-sized light/shadow clutter, as in real foliage
+    rgb *= (1 + 0.5 * speck + 1.2 * leaves)[:, None]
     return rgb, ir * (1 + 0.3 * speck)
 
 
