@@ -1,6 +1,10 @@
 """The results store and the runner's caching: what is done is reused, damaged files are recomputed, history is kept."""
 
 import os
+import signal
+import subprocess
+import sys
+import time
 
 import pandas as pd
 import pytest
@@ -135,3 +139,30 @@ def test_untrained_rows_start_from_the_same_weights_in_every_run(registry):
     assert a.weights == b.weights == "untrained"
     first, second = (dict(j.pipeline.stages["encoder2d"].named_parameters()) for j in (a, b))
     assert all((first[name] == second[name]).all() for name in first)
+
+
+WRITER = """
+import sys
+from i2pbench.runs.store import ResultsStore
+store = ResultsStore(sys.argv[1])
+for i in range(1000):
+    store.put(f"k{i:04d}", {"frame_id": str(i), "T_pred": [float(i)] * 2_000_000})
+"""
+
+
+def test_a_writer_killed_in_the_middle_of_a_write_leaves_only_whole_files(tmp_path):
+    process = subprocess.Popen([sys.executable, "-c", WRITER, str(tmp_path)])
+    frames = tmp_path / "frames"
+    deadline = time.monotonic() + 60
+    while not (len(list(frames.glob("*.parquet"))) >= 2 and list(frames.glob(".*.tmp"))):
+        assert process.poll() is None and time.monotonic() < deadline, "the writer never got going"
+        time.sleep(0.001)
+    os.kill(process.pid, signal.SIGKILL)  # a temp file exists: the kill lands during a write
+    process.wait()
+    store = ResultsStore.__new__(ResultsStore)  # open without sweeping, to see what the kill left
+    store.root, store.frames_dir = tmp_path, frames
+    finished = store.load()
+    assert len(finished) >= 2 and all(len(t) == 2_000_000 for t in finished["T_pred"])
+    assert list(frames.glob(".*.tmp"))  # the interrupted write is still there, unseen by load
+    ResultsStore(tmp_path)
+    assert not list(frames.glob(".*.tmp"))  # and is swept once its writer is dead
