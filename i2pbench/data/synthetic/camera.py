@@ -15,17 +15,19 @@ _RAYS: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
 def pixel_rays(camera: Camera, lidar_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World origin [3] and unit directions [H*W x 3] through pixel centres: the ray of pixel (u, v) projects to
-    exactly (u, v) with K, the convention of KITTI and OpenCV. Cached: every frame uses the same rig."""
-    key = camera.K.tobytes() + camera.T_cam_lidar.tobytes() + np.array(camera.size).tobytes() + lidar_pose.tobytes()
+    exactly (u, v) with K, the convention of KITTI and OpenCV. The rays in the LiDAR frame are cached (one rig)."""
+    key = camera.K.tobytes() + camera.T_cam_lidar.tobytes() + np.array(camera.size).tobytes()
     if key not in _RAYS:
         w, h = camera.size
         u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
         pix = np.stack([u.ravel(), v.ravel(), np.ones(u.size)], axis=1)
-        T_world_cam = lidar_pose @ np.linalg.inv(camera.T_cam_lidar)
-        dirs = pix @ np.linalg.inv(camera.K).T @ T_world_cam[:3, :3].T
+        T_lidar_cam = np.linalg.inv(camera.T_cam_lidar)
+        dirs = pix @ np.linalg.inv(camera.K).T @ T_lidar_cam[:3, :3].T
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-        _RAYS[key] = (T_world_cam[:3, 3].copy(), dirs)
-    return _RAYS[key]
+        _RAYS[key] = (T_lidar_cam[:3, 3].copy(), dirs)
+    origin, dirs = _RAYS[key]
+    R, t = lidar_pose[:3, :3], lidar_pose[:3, 3]
+    return R @ origin + t, dirs @ R.T
 
 
 def render(caster: Caster, camera: Camera, lidar_pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -70,6 +72,7 @@ def _develop(radiance: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     exposure = 0.9 / max(float(np.percentile(lum, 98)), 1e-3)
     img = np.clip(radiance * exposure, 0, 1).astype(np.float32)
     img = cv2.GaussianBlur(img, (0, 0), 0.6)
-    img = img ** (1 / 2.2)
+    img *= rng.normal(1.0, 0.04, 3).astype(np.float32)  # white balance differs from drive to drive
+    img = np.clip(img, 0, 1) ** (1 / 2.2)
     img += rng.normal(0, 0.015, img.shape).astype(np.float32)
     return np.clip(img * 255 + 0.5, 0, 255).astype(np.uint8)

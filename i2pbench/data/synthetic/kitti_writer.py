@@ -16,7 +16,7 @@ import numpy as np
 from .camera import render
 from .lidar import scan
 from .raycast import Caster
-from .rig import calib_text, camera2, hdl64
+from .rig import calib_text, camera2, hdl64, on_uneven_road
 from .scene import build_scene
 from .version import GENERATOR_VERSION
 
@@ -29,7 +29,7 @@ def simulate(seed: int, sequence: str, index: int, nthreads: int = 0) -> tuple[n
     """(points [N x 4] float32, ring [N] int16, image [H x W x 3] uint8 RGB) of one frame."""
     rng = frame_rng(seed, sequence, index)
     caster = Caster(build_scene(rng), nthreads=nthreads)
-    lidar = hdl64()
+    lidar = on_uneven_road(hdl64(), rng)
     points, ring, _ = scan(caster, lidar, rng)
     return points, ring, render(caster, camera2(), lidar.pose, rng)
 

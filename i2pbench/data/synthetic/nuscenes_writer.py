@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 from .camera import render
 from .lidar import scan
 from .raycast import Caster
-from .rig import Camera, Lidar
+from .rig import Camera, Lidar, on_uneven_road
 from .scene import build_scene
 from .version import GENERATOR_VERSION
 
@@ -68,6 +68,7 @@ def simulate(seed: int, scene: int, sample: int) -> tuple[np.ndarray, np.ndarray
     rng = np.random.default_rng([GENERATOR_VERSION, int(seed), 1_000_000 + scene, sample])
     caster = Caster(build_scene(rng))
     lidar, camera = rig()
+    lidar = on_uneven_road(lidar, rng)
     points, ring, step = scan(caster, lidar, rng)
     order = np.lexsort((ring, step))  # firing by firing: every beam of one azimuth step, bottom beam first
     intensity = np.round(255 * points[order, 3].astype(np.float64) ** 2)

@@ -109,3 +109,47 @@ def hedge(b: MeshBuilder, pal: Palette, xy, yaw: float, length: float) -> None:
 def wall(b: MeshBuilder, pal: Palette, xy, yaw: float, length: float) -> None:
     r = pal.rng
     b.box(xy, (length, r.uniform(0.2, 0.4), r.uniform(0.6, 2.0)), yaw, -0.1, pal.brick())
+
+
+def pedestrian(b: MeshBuilder, pal: Palette, xy, yaw: float) -> None:
+    """Standing person: two legs, torso, arms and head as boxes, in random clothing colours."""
+    r = pal.rng
+    height = r.uniform(1.55, 1.95)
+    legs = pal.plain(pal.pick([(0.15, 0.15, 0.2), (0.25, 0.3, 0.45), (0.4, 0.35, 0.3)]), float(r.uniform(0.1, 0.4)))
+    top = pal.plain(pal.pick([(0.8, 0.1, 0.1), (0.9, 0.9, 0.9), (0.1, 0.1, 0.1), (0.2, 0.4, 0.7), (0.8, 0.7, 0.2)]),
+                    float(r.uniform(0.1, 0.6)))
+    skin = pal.plain(pal.pick([(0.85, 0.65, 0.5), (0.55, 0.4, 0.3), (0.35, 0.25, 0.2)]), 0.35)
+    leg_h, torso_h = 0.47 * height, 0.33 * height
+    for across in (-0.1, 0.1):
+        b.box(_offset(xy, yaw, 0, across), (0.18, 0.14, leg_h), yaw, 0.0, legs)
+        b.box(_offset(xy, yaw, 0, 2.6 * across), (0.12, 0.09, torso_h * 0.95), yaw, leg_h + 0.05, top)
+    b.box(xy, (0.26, 0.42, torso_h), yaw, leg_h, top)
+    b.box(xy, (0.2, 0.18, height - leg_h - torso_h), yaw, leg_h + torso_h, skin)
+
+
+def bush(b: MeshBuilder, pal: Palette, xy, _yaw: float = 0.0) -> None:
+    """Low lumpy shrub (same perturbed sphere as tree crowns, squashed onto the ground)."""
+    r = pal.rng
+    verts, tris = _sphere()
+    size = r.uniform(0.4, 1.3)
+    scale = np.array([size * r.uniform(0.8, 1.5), size * r.uniform(0.8, 1.5), size * r.uniform(0.5, 0.9)])
+    lump = 1 + 0.2 * r.standard_normal(len(verts))
+    angle = r.uniform(0, np.pi)
+    b.triangles(verts * lump[:, None] * scale + [xy[0], xy[1], scale[2] * 0.6], tris, pal.foliage(),
+                [np.cos(angle), np.sin(angle), 0.0])
+
+
+def bollard(b: MeshBuilder, pal: Palette, xy, _yaw: float = 0.0) -> None:
+    """Short post with a retro-reflective band: a strong reflectance edge on a small depth edge."""
+    r = pal.rng
+    height = r.uniform(0.8, 1.1)
+    mat = pal.striped(pal.grey(0.2, 0.6), 0.3, (0.95, 0.95, 0.95), 0.95, (height - 0.25, height - 0.1), 0.15)
+    b.prism(xy, r.uniform(0.06, 0.1), 0.0, height, mat, sides=6)
+
+
+def bin_(b: MeshBuilder, pal: Palette, xy, yaw: float) -> None:
+    """Wheelie bin or litter bin."""
+    r = pal.rng
+    colour = pal.pick([(0.1, 0.3, 0.15), (0.2, 0.2, 0.22), (0.15, 0.3, 0.6), (0.6, 0.5, 0.1)])
+    b.box(xy, (r.uniform(0.5, 0.8), r.uniform(0.5, 0.8), r.uniform(0.9, 1.2)), yaw, 0.0,
+          pal.plain(colour, float(r.uniform(0.1, 0.35)), 0.1))

@@ -8,6 +8,7 @@ convention recovers the rendering camera to the last bit.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from functools import cache, cached_property
 
@@ -106,3 +107,15 @@ def camera2() -> Camera:
     T[:3] = calib["Tr"]
     T[:3, 3] += np.linalg.inv(K) @ calib["P2"][:, 3]
     return Camera(K=K, T_cam_lidar=T)
+
+
+def on_uneven_road(lidar: Lidar, rng: np.random.Generator) -> Lidar:
+    """The rig as mounted on a car that pitches and rolls a little (suspension, road camber and grade), so the
+    ground is not always exactly 1.73 m below the LiDAR along its z axis, as in real drives."""
+    pitch, roll = np.radians(rng.normal(0, 0.8)), np.radians(rng.normal(0, 0.5))
+    cp, sp, cr, sr = np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    tilt = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]]) @ np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    pose = lidar.pose.copy()
+    pose[:3, :3] = tilt @ pose[:3, :3]
+    pose[2, 3] += rng.normal(0, 0.02)
+    return dataclasses.replace(lidar, pose=pose)

@@ -208,6 +208,21 @@ def _furniture(b, pal: Palette, road: Road, side: int) -> None:
             props.traffic_sign(b, pal, road.world(s, t_kerb + side * 0.2), road.yaw + np.pi * (side < 0))
     if r.random() < 0.4:
         _trees(b, pal, road, side, road.edge(side) + side * 1.2, (7, 15))
+    _clutter(b, pal, road, side)
+
+
+def _clutter(b, pal: Palette, road: Road, side: int) -> None:
+    """People, bins, bollards and shrubs on the pavement: small objects with depth edges of their own."""
+    r = pal.rng
+    width = road.walk[0 if side > 0 else 1]
+    builders = [props.pedestrian, props.pedestrian, props.bin_, props.bollard, props.bush]
+    for _ in range(int(r.integers(0, 12))):
+        s = r.uniform(-40, 80)
+        if road.blocked(s, 2.0):
+            continue
+        build = builders[int(r.integers(len(builders)))]
+        t = road.edge(side) + side * r.uniform(0.4, width - 0.4)
+        build(b, pal, road.world(s, t), road.yaw + r.uniform(0, 2 * np.pi))
 
 
 def _parked_cars(b, pal: Palette, road: Road, side: int) -> None:
