@@ -1,0 +1,111 @@
+"""Every hook in hookspecs, implemented by one plugin, lands in the registry attributed to that plugin."""
+
+import pytest
+import toy_plugin
+
+from i2pbench.api import Encoder3D, Exchanger, hookimpl
+from i2pbench.errors import PluginError
+from i2pbench.hookspecs import HOOK_NAMES, STAGE_HOOKS
+from i2pbench.plugins import build_registry, components_of
+
+
+class Encoder3DStub(Encoder3D):
+    name = "stub3d"
+
+
+class ExchangerStub(Exchanger):
+    name = "stub-exchanger"
+
+
+class EveryHook:
+    """Implements every hook, reusing the toy plugin's classes where it has one."""
+
+    __name__ = "every-hook"
+
+    @hookimpl
+    def register_datasets(self, register):
+        register(toy_plugin.ToyDataset)
+
+    @hookimpl
+    def register_extractors_2d(self, register):
+        register(toy_plugin.GridPixels)
+
+    @hookimpl
+    def register_extractors_3d(self, register):
+        register(toy_plugin.FirstPoints)
+
+    @hookimpl
+    def register_encoders_2d(self, register):
+        register(toy_plugin.ConstantEncoder)
+
+    @hookimpl
+    def register_encoders_3d(self, register):
+        register(Encoder3DStub)
+
+    @hookimpl
+    def register_exchangers(self, register):
+        register(ExchangerStub)
+
+    @hookimpl
+    def register_matchers(self, register):
+        register(toy_plugin.TruthMatcher)
+
+    @hookimpl
+    def register_pose_solvers(self, register):
+        register(toy_plugin.GroundTruthSolver)
+
+    @hookimpl
+    def register_presets(self, register):
+        register("everything", [{"extractor2d": "grid", "solver": "truth"}], "one of each")
+
+    @hookimpl
+    def register_weights(self, register):
+        register("/weights/every-hook.pt")
+
+
+@pytest.fixture
+def registry(monkeypatch):
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    return build_registry((EveryHook(),))
+
+
+def test_the_plugin_implements_every_hook():
+    assert set(HOOK_NAMES) == {name for name in dir(EveryHook) if name.startswith("register_")}
+
+
+def test_each_stage_hook_registers_its_kind(registry):
+    expected = {
+        "extractor2d": "grid",
+        "extractor3d": "first",
+        "encoder2d": "constant",
+        "encoder3d": "stub3d",
+        "exchanger": "stub-exchanger",
+        "matcher": "truth",
+        "solver": "truth",
+    }
+    assert set(expected) == set(STAGE_HOOKS)
+    for kind, name in expected.items():
+        assert registry.owner(kind, name) == "every-hook"
+
+
+def test_datasets_presets_and_weights_are_registered(registry):
+    assert registry.dataset("toy") is toy_plugin.ToyDataset
+    assert registry.preset("everything").combinations == ({"extractor2d": "grid", "solver": "truth"},)
+    assert registry.weights == [("/weights/every-hook.pt", "every-hook")]
+    listed = components_of(registry, "every-hook")
+    assert (
+        listed["dataset"] == ["toy"] and listed["preset"] == ["everything"] and listed["weights"] == ["every-hook.pt"]
+    )
+
+
+def test_a_class_of_the_wrong_kind_is_refused_naming_the_plugin(monkeypatch):
+    class Confused:
+        __name__ = "confused"
+
+        @hookimpl
+        def register_exchangers(self, register):
+            register(toy_plugin.GridPixels)
+
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    with pytest.raises(PluginError, match="plugin 'confused' registered .* as a exchanger, but it does not subclass"):
+        build_registry((Confused(),))
