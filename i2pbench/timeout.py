@@ -68,13 +68,21 @@ class _Task:
 
 
 class TimeLimiter:
-    """Runs calls in one reusable daemon worker thread and waits at most `timeout_s` for each."""
+    """Runs calls in one reusable daemon worker thread and waits at most `timeout_s` for each.
+
+    The worker belongs to the process that started it: a forked or unpickled copy (a pipeline sent to a process
+    pool) starts its own on first use rather than queueing work for a thread that does not exist there.
+    """
 
     def __init__(self, timeout_s: float | None) -> None:
         if timeout_s is not None and timeout_s <= 0:
             raise ValueError(f"timeout_s must be positive or None, got {timeout_s}")
         self.timeout_s = timeout_s
         self._tasks: queue.SimpleQueue[_Task | None] | None = None
+        self._pid = 0  # the process the worker runs in
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"timeout_s": self.timeout_s, "_tasks": None, "_pid": 0}
 
     def call(self, fn: Callable[[], Any]) -> Any:
         """fn() within the limit; raises StageTimeout when it overruns, or whatever fn raised."""
@@ -96,10 +104,10 @@ class TimeLimiter:
         self._tasks = None
 
     def _worker(self) -> queue.SimpleQueue[_Task | None]:
-        if self._tasks is None:
+        if self._tasks is None or self._pid != os.getpid():
             tasks: queue.SimpleQueue[_Task | None] = queue.SimpleQueue()
             threading.Thread(target=_serve, args=(tasks,), name="i2pbench-stage", daemon=True).start()
-            self._tasks = tasks
+            self._tasks, self._pid = tasks, os.getpid()
         return self._tasks
 
 

@@ -1,5 +1,6 @@
 """A third-party stage that hangs, raises or returns garbage fails its frame, named; blocked plugins never load."""
 
+import pickle
 import time
 
 import numpy as np
@@ -73,6 +74,13 @@ def test_time_limiter_passes_values_and_errors_through_and_recovers_after_a_time
     assert limiter.call(lambda: "fresh worker") == "fresh worker"
     with pytest.raises(ZeroDivisionError):
         limiter.call(lambda: 1 / 0)
+
+
+def test_a_pickled_limiter_starts_its_own_worker():
+    limiter = TimeLimiter(1.0)
+    assert limiter.call(lambda: 1) == 1
+    copy = pickle.loads(pickle.dumps(limiter))  # as a pipeline sent to a process pool
+    assert copy.timeout_s == 1.0 and copy.call(lambda: 2) == 2
 
 
 def test_stage_timeout_reads_the_environment(monkeypatch):
