@@ -76,6 +76,15 @@ class Scribbler(Extractor3D):
         return Keypoints3D.from_index(frame, np.arange(min(3, len(frame.points))))
 
 
+class EveryPoint(Extractor3D):
+    """Passes a corrupt scan's NaN points straight on."""
+
+    name = "every-point"
+
+    def __call__(self, frame):
+        return Keypoints3D.from_index(frame, np.arange(len(frame.points)))
+
+
 class StrictNaN(Encoder3D):
     """Refuses NaN with a bare exception: an error nobody can act on."""
 
@@ -175,6 +184,17 @@ def test_a_bare_exception_on_bad_input_is_caught():
     assert message == "on a scan with NaN in 1 of 7 points: raised ValueError with no message; say what is wrong"
 
 
+def test_garbage_on_bad_input_is_caught():
+    (message,) = _messages(check_component(EveryPoint), "bad input")
+    assert message.startswith("on a scan with NaN in 1 of 7 points: returned garbage instead of raising a clear error")
+    assert message.endswith("xyz contains NaN or inf")
+
+
+def test_a_conf_the_component_refuses_is_reported():
+    (message,) = _messages(check_component(Corners, {"max_keypoint": 5}), "construct")
+    assert "unknown config key 'max_keypoint'" in message
+
+
 def test_missing_descriptors_from_an_encoder_that_provides_them_is_caught():
     (message,) = _messages(check_component(Silent), "contract")
     assert "returned no descriptors although it declares it provides features2d" in message
@@ -195,7 +215,7 @@ def test_a_pose_from_zero_matches_is_caught():
     ("cls", "fragment"),
     [
         (TakesAnything, "accepted the unknown config key"),
-        (TimeTraveller, "consumes ['keypoints3d'], which no stage before a extractor2d provides"),
+        (TimeTraveller, "consumes ['keypoints3d'], which no stage before the extractor2d provides"),
         (dict, "does not subclass a stage base"),
     ],
 )

@@ -36,15 +36,9 @@ def check_component(cls: type, conf: Mapping[str, Any] | None = None, frame: Fra
     """Run every check on `cls` built with `conf`; returns the problems found (empty when it conforms)."""
     report = ConformanceReport(getattr(cls, "__name__", repr(cls)))
     report.extend(check_declaration(cls))
-    if report:
+    component = None if report else _build(cls, conf, report)
+    if component is None:
         return report
-    try:
-        component = cls(dict(conf) if conf else None)
-    except Exception as exc:
-        return report.add("construct", f"{cls.__name__}({conf}) raised {_describe(exc)}")
-    if isinstance(component, LearnedComponent):
-        component.eval()  # inference behaviour (no dropout), as the runner sets it
-    report.component = component.label
     frame = frame if frame is not None else synthetic_frame()
     inputs = ground_truth_inputs(frame, descriptor_dim(component))
     first = _check_sample(component, frame, inputs, report)
@@ -57,10 +51,23 @@ def check_component(cls: type, conf: Mapping[str, Any] | None = None, frame: Fra
     return report
 
 
+def _build(cls: type[Component], conf: Mapping[str, Any] | None, report: ConformanceReport) -> Component | None:
+    try:
+        component = cls(dict(conf) if conf else None)
+    except Exception as exc:
+        report.add("construct", f"{cls.__name__}({conf}) raised {_describe(exc)}")
+        return None
+    if isinstance(component, LearnedComponent):
+        component.eval()  # inference behaviour (no dropout), as the runner sets it
+    report.component = component.label
+    return component
+
+
 def assert_conforms(cls: type, conf: Mapping[str, Any] | None = None, frame: Frame | None = None) -> None:
     """pytest-friendly: raise AssertionError listing every problem check_component finds."""
     report = check_component(cls, conf, frame)
-    assert not report, str(report)
+    if report:
+        raise AssertionError(str(report))
 
 
 def check_declaration(cls: type) -> list[Problem]:
@@ -93,7 +100,7 @@ def _check_values(cls: type[Component]) -> list[Problem]:
             problems.append(Problem("declaration", f"{attr} names unknown values {unknown}; known: {sorted(known)}"))
     late = sorted(set(cls.consumes) & known - available)
     if late:
-        problems.append(Problem("declaration", f"consumes {late}, which no stage before a {cls.kind} provides"))
+        problems.append(Problem("declaration", f"consumes {late}, which no stage before the {cls.kind} provides"))
     return problems
 
 
