@@ -9,7 +9,7 @@ from collections.abc import Sequence
 
 from .errors import I2PBenchError
 
-COMMANDS = ("plugins", "run", "train", "diagnose", "data", "compare")
+COMMANDS = ("plugins", "run", "train", "diagnose", "data", "compare", "viz", "report")
 
 
 def build_parser() -> argparse.ArgumentParser:

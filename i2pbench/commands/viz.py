@@ -1,0 +1,78 @@
+"""`i2pbench viz`: one frame's LiDAR points projected under the initial, ground-truth and predicted poses, as PNG."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .run import STAGE_OPTIONS, _combinations, _split_list, add_data_options, open_dataset
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("viz", help="draw one frame's LiDAR points under the initial, ground-truth and predicted poses")
+    p.add_argument("frame", help="frame id (e.g. 00/000000) or its index in the split (e.g. 0)")
+    for kind, flags in STAGE_OPTIONS.items():
+        p.add_argument(*flags, dest=kind, type=_split_list, help=f"{kind} name; 'none' skips")
+    p.add_argument("--preset", help="a registered preset; it must come down to one combination with the options")
+    p.add_argument("--conf", action="append", default=[], metavar="KIND.KEY=VALUE", help="component config override")
+    add_data_options(p)
+    p.add_argument("--weights", default="auto", help="'auto', 'untrained', or a checkpoint path")
+    p.add_argument("--seed", type=int, default=0, help="protocol seed for the random transform")
+    p.add_argument("--out", help="PNG path (default viz/<dataset>-<split>-<frame>.png)")
+    p.add_argument("--edges", action="store_true", help="add a panel of the 2D and 3D edge points")
+    p.add_argument("--matches", action="store_true", help="add a panel of the matches, inliers vs outliers")
+    p.add_argument("--radius", type=int, default=1, help="point radius in pixels (0: one pixel)")
+    p.set_defaults(grid=None)
+
+
+def resolve_frame(frame_ids: list[str], frame: str) -> str:
+    """A frame id as given, or the id at that index when FRAME is a bare number not itself an id."""
+    from ..errors import DataError
+
+    if frame in frame_ids or not frame.isdigit():
+        return frame
+    if int(frame) >= len(frame_ids):
+        raise DataError(f"frame index {frame} is past the split's {len(frame_ids)} frames")
+    return frame_ids[int(frame)]
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..errors import PluginError
+    from ..plugins import default_registry
+    from ..protocol import Protocol
+    from ..report import overlay
+    from ..report.trace import trace
+    from ..runs.environment import fix_threads
+    from ..runs.runner import prepare
+
+    fix_threads()
+    registry = default_registry()
+    combinations = _combinations(registry, args)
+    if len(combinations) != 1:
+        labels = "; ".join(c.label for c in combinations)
+        raise PluginError(f"viz draws one combination, these options give {len(combinations)}: {labels}")
+    dataset = open_dataset(registry, args)
+    frame_id = resolve_frame(dataset.frame_ids(), args.frame)
+    job = prepare(registry, combinations, args.weights)[0]
+    frame = Protocol(seed=args.seed).apply(dataset.load(frame_id))
+    result = trace(job.pipeline, frame)
+    out = args.out or f"viz/{dataset.name}-{dataset.split}-{frame_id.replace('/', '-')}.png"
+    overlay.write_png(out, overlay.compose(_panels(frame, result, job.label, args)))
+    estimate = result.outcome.estimate
+    summary = overlay.errors_text(estimate.T, frame.T_gt) if estimate.ok else f"failed: {estimate.message}"
+    print(f"{job.label} on {dataset.name}/{dataset.split} {frame_id}: {summary}\nwritten: {out}", file=sys.stderr)
+    return 0
+
+
+def _panels(frame, result, label: str, args: argparse.Namespace) -> list:
+    """The three pose panels, then the edge and match panels asked for (skipped when their stage did not run)."""
+    from ..report import overlay
+
+    estimate = result.outcome.estimate
+    panels = overlay.pose_panels(frame, estimate.T, failure=estimate.message, radius=args.radius)
+    panels[0][0].insert(0, f"{frame.dataset} {frame.frame_id}: {label}")
+    if args.edges and result.kp2d is not None and result.kp3d is not None:
+        panels.append(overlay.edges_panel(frame, result.kp2d, result.kp3d))
+    if args.matches and result.matches is not None:
+        panels.append(overlay.matches_panel(frame, result.kp2d, result.kp3d, result.matches, estimate.inliers))
+    return panels
