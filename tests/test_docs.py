@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from i2pbench.cli import build_parser
+from i2pbench.cli import COMMANDS, build_parser
 from i2pbench.hookspecs import HOOK_NAMES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,6 +55,11 @@ def test_every_hook_is_exercised_by_a_test(hook):
 def test_relative_links_resolve(page):
     for target in re.findall(r"\]\(([^)#:]+)(?:#[^)]*)?\)", page.read_text()):
         assert (page.parent / target).exists(), f"{page.name} links to missing {target}"
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_every_command_is_in_getting_started(command):
+    assert f"`i2pbench {command}" in (DOCS / "getting-started.md").read_text()
 
 
 def test_every_page_is_listed_in_the_index():
