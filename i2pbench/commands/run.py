@@ -34,6 +34,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--weights", default="auto", help="'auto' (shipped checkpoint fitting the stages), 'untrained', or a path"
     )
+    p.add_argument("--device", default="auto", help="where learned stages run: auto (cuda if available), cpu, cuda")
     p.add_argument("--seed", type=int, default=0, help="protocol seed for the random transforms")
     p.add_argument("--runs-dir", default="runs", help="where per-frame results are cached")
     p.add_argument("--out", help="leaderboard file stem (default leaderboards/<dataset>-<split>)")
@@ -97,42 +98,56 @@ def run(args: argparse.Namespace) -> int:
     from .. import leaderboard
     from ..plugins import default_registry
     from ..protocol import Protocol
-    from ..runs.environment import environment, fix_threads
+    from ..runs.environment import fix_threads
     from ..runs.invocation import Invocation
     from ..runs.store import ResultsStore
+    from ..training import pick_device
 
     threads = fix_threads(args.threads)
+    args.device = str(pick_device(args.device))  # resolved once: "auto" would read differently in the record
     registry = default_registry()
     combinations = _combinations(registry, args)
     dataset = open_dataset(registry, args)
     frame_ids = dataset.frame_ids()[: args.frames]
     protocol = Protocol(seed=args.seed)
     store = ResultsStore(Path(args.runs_dir) / f"{dataset.name}-{dataset.split}")
-    invocation = Invocation(
-        store.root,
-        {
-            "argv": sys.argv,
-            "threads": threads,
-            "protocol": protocol.card(),
-            "dataset": dataset.identity(),
-            "frames": frame_ids,
-            "environment": environment(),
-            "combinations": [c.describe() for c in combinations],
-        },
-    )
+    invocation = Invocation(store.root, _meta(args, threads, protocol, dataset, frame_ids, combinations))
     start = time.perf_counter()
     records = _run_grid(registry, combinations, dataset, frame_ids, protocol, store, invocation.id, args)
     board = leaderboard.build(records, protocol)
-    invocation.finish(
-        wall_s=time.perf_counter() - start,
-        computed=int((records["invocation"] == invocation.id).sum()),
-        reused=int((records["invocation"] != invocation.id).sum()),
-        rows=board[leaderboard.GROUP].to_dict("records"),
-    )
+    invocation.finish(**_summary(records, board, invocation.id, time.perf_counter() - start))
     paths = leaderboard.write(board, args.out or f"leaderboards/{dataset.name}-{dataset.split}")
     print(leaderboard.to_markdown(board))
     print(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store.root}", file=sys.stderr)
     return 0
+
+
+def _meta(args, threads: int, protocol, dataset, frame_ids: list[str], combinations) -> dict[str, Any]:
+    """What this invocation depends on, recorded before any frame runs (a killed run keeps it too)."""
+    from ..runs.environment import environment
+
+    return {
+        "argv": sys.argv,
+        "threads": threads,
+        "device": args.device,
+        "protocol": protocol.card(),
+        "dataset": dataset.identity(),
+        "frames": frame_ids,
+        "environment": environment(),
+        "combinations": [c.describe() for c in combinations],
+    }
+
+
+def _summary(records, board, invocation: str, wall_s: float) -> dict[str, Any]:
+    from .. import leaderboard
+
+    computed = int((records["invocation"] == invocation).sum())
+    return {
+        "wall_s": wall_s,
+        "computed": computed,
+        "reused": len(records) - computed,
+        "rows": board[leaderboard.GROUP].to_dict("records"),
+    }
 
 
 def _run_grid(registry, combinations, dataset, frame_ids, protocol, store, invocation: str, args):
@@ -150,6 +165,7 @@ def _run_grid(registry, combinations, dataset, frame_ids, protocol, store, invoc
             protocol,
             store,
             weights=args.weights,
+            device=args.device,
             frame_ids=frame_ids,
             overwrite=args.overwrite,
             progress=bar.update,

@@ -37,6 +37,7 @@ class Job:
 
     combination: Combination
     pipeline: Pipeline
+    device: str = "cpu"  # where the learned stages run
 
     @property
     def weights(self) -> str:
@@ -53,7 +54,9 @@ class Job:
         return {kind: {"name": c.name, "conf": c.conf} for kind, c in self.pipeline.stages.items()}
 
 
-def prepare(registry: Registry, combinations: Sequence[Combination], weights: str = "auto") -> list[Job]:
+def prepare(
+    registry: Registry, combinations: Sequence[Combination], weights: str = "auto", device: str = "cpu"
+) -> list[Job]:
     """Build every pipeline before any frame runs, so an incompatible combination is refused up front."""
     shipped = [path for path, _ in registry.weights]
     jobs = []
@@ -62,7 +65,7 @@ def prepare(registry: Registry, combinations: Sequence[Combination], weights: st
         checkpoint = select_checkpoint(pipeline, weights, shipped)
         if checkpoint is not None:
             apply_checkpoint(pipeline, checkpoint)
-        jobs.append(Job(combination, pipeline.eval()))
+        jobs.append(Job(combination, pipeline.to(device).eval(), str(device)))
     return jobs
 
 
@@ -181,6 +184,7 @@ def _record(
         "n_inliers": outcome.n_inliers,
         "model_size_mb": job.pipeline.model_size_mb(),
         "threads": torch.get_num_threads(),
+        "device": job.device,
         "t_total_s": sum(outcome.timings.values()),
         "t_load_s": load,
         "wall_s": wall,
@@ -199,13 +203,14 @@ def run_grid(
     store: ResultsStore,
     *,
     weights: str = "auto",
+    device: str = "cpu",
     frame_ids: Sequence[str] | None = None,
     overwrite: bool = False,
     progress: Progress | None = None,
     invocation: str = "",
 ) -> pd.DataFrame:
     """Run every combination over the split; returns this grid's per-frame records (cached ones included)."""
-    jobs = prepare(registry, combinations, weights)
+    jobs = prepare(registry, combinations, weights, device)
     frame_ids = list(frame_ids if frame_ids is not None else dataset.frame_ids())
     records: list[dict[str, Any]] = []
     for job in jobs:
