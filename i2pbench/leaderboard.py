@@ -90,13 +90,15 @@ def latency_columns(board: pd.DataFrame) -> list[str]:
 
 
 DISPLAY = [
-    "dataset", "split", "combination", "weights", "frames", "failures", ACC, RTE, RRE, MODEL_SIZE,
-    LATENCY_MEDIAN, LATENCY_P90,
+    "dataset", "split", "combination", "weights", "weights_trained_on", "frames", "failures", ACC, RTE, RRE,
+    MODEL_SIZE, LATENCY_MEDIAN, LATENCY_P90,
 ]
 
 
 def to_markdown(board: pd.DataFrame, columns: list[str] | None = None) -> str:
-    shown = board[[c for c in (columns or DISPLAY) if c in board]].copy()
+    """A Markdown table of `columns` (default DISPLAY, less the columns that are empty in every row)."""
+    columns = columns or [c for c in DISPLAY if c in board and not (board[c].astype(str) == "").all()]
+    shown = board[[c for c in columns if c in board]].copy()
     for column in shown.columns:
         if shown[column].dtype.kind == "f":
             shown[column] = shown[column].map(lambda v: "-" if pd.isna(v) else f"{v:.2f}")

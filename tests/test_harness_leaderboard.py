@@ -80,3 +80,9 @@ def test_files_round_trip_and_markdown_has_arrows(board, tmp_path):
     markdown = paths[1].read_text()
     assert "| Acc. (%) ↑ |" in markdown and "RTE (m) ↓" in markdown and "latency p90 (ms) ↓" in markdown
     assert markdown.count("\n") == 2 + len(board)
+
+
+def test_markdown_shows_trained_on_only_when_some_row_has_weights(board):
+    assert "weights_trained_on" not in leaderboard.to_markdown(board)
+    board.loc[0, ["weights", "weights_trained_on"]] = ["edgeregnet@0123abcd", "synthetic/train, 20000 steps"]
+    assert "| edgeregnet@0123abcd | synthetic/train, 20000 steps |" in leaderboard.to_markdown(board)

@@ -96,6 +96,7 @@ def _combinations(registry, args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from .. import leaderboard
+    from ..errors import DataError
     from ..plugins import default_registry
     from ..protocol import Protocol
     from ..runs.environment import fix_threads
@@ -109,6 +110,8 @@ def run(args: argparse.Namespace) -> int:
     combinations = _combinations(registry, args)
     dataset = open_dataset(registry, args)
     frame_ids = dataset.frame_ids()[: args.frames]
+    if not frame_ids:
+        raise DataError(f"dataset {dataset.name!r} split {dataset.split!r} has no frames to run")
     protocol = Protocol(seed=args.seed)
     store = ResultsStore(Path(args.runs_dir) / f"{dataset.name}-{dataset.split}")
     invocation = Invocation(store.root, _meta(args, threads, protocol, dataset, frame_ids, combinations))
