@@ -1,0 +1,188 @@
+"""The report page: one self-contained HTML file (inline CSS and JS, images base64-embedded) for a runs directory.
+
+Self-contained so it can be mailed, attached to a CI run or opened offline. The only script sorts the leaderboard
+when a header is clicked; each cell carries its raw value in `data-sort`, so "0.03 ± 0.01" sorts by its mean.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime
+import os
+from html import escape
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .. import leaderboard as lb
+from . import curves
+from .examples import Example, render_examples
+from .rundir import RunDir, load_run
+
+COLUMNS = [
+    "combination", "weights", "frames", "failures", lb.ACC, lb.RTE, lb.RRE, "geodesic median (°) ↓", lb.MODEL_SIZE,
+    lb.LATENCY_MEDIAN, lb.LATENCY_P90,
+]
+SORT_BY = {lb.RTE: lb.RTE_MEAN, lb.RRE: lb.RRE_MEAN}  # "mean ± std" text columns sort by their mean
+
+CSS = """
+body { font: 14px/1.45 system-ui, sans-serif; margin: 24px auto; max-width: 1360px; padding: 0 16px; color: #222; }
+h1 { font-size: 22px; } h2 { font-size: 18px; margin-top: 32px; border-bottom: 1px solid #ddd; }
+table { border-collapse: collapse; font-size: 13px; }
+th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: right; }
+th { background: #f3f3f3; cursor: pointer; user-select: none; white-space: nowrap; }
+th[aria-sort=ascending]::after { content: " ▲"; } th[aria-sort=descending]::after { content: " ▼"; }
+td:first-child, td:nth-child(2) { text-align: left; }
+img { max-width: 100%; display: block; margin: 8px 0; }
+figure { margin: 16px 0; } figcaption { font-weight: 600; }
+.meta { color: #555; font-size: 13px; } .note { color: #8a4b00; }
+"""
+
+JS = """
+(function () {
+  function key(row, col) {
+    var text = row.cells[col].getAttribute("data-sort");
+    var number = parseFloat(text);
+    return isNaN(number) ? text : number;
+  }
+  function compare(a, b) {
+    if (typeof a === typeof b) { return a < b ? -1 : a > b ? 1 : 0; }
+    return typeof a === "number" ? -1 : 1;
+  }
+  function sortBy(table, th, col) {
+    var ascending = th.getAttribute("aria-sort") !== "ascending";
+    table.querySelectorAll("th").forEach(function (h) { h.setAttribute("aria-sort", "none"); });
+    th.setAttribute("aria-sort", ascending ? "ascending" : "descending");
+    var body = table.tBodies[0];
+    var rows = Array.prototype.slice.call(body.rows);
+    rows.sort(function (a, b) { return compare(key(a, col), key(b, col)) * (ascending ? 1 : -1); });
+    rows.forEach(function (row) { body.appendChild(row); });
+  }
+  document.querySelectorAll("table.sortable").forEach(function (table) {
+    table.querySelectorAll("th").forEach(function (th, col) {
+      th.setAttribute("aria-sort", "none");
+      th.title = "click to sort";
+      th.addEventListener("click", function () { sortBy(table, th, col); });
+    });
+  });
+})();
+"""
+
+
+def write_report(
+    run_root: Path, out: Path, overlays: int = 4, data_root: str | None = None, quiet: bool = True
+) -> list[str]:
+    """Build the page for a runs directory and write it atomically; returns the notes it shows (also for stderr)."""
+    run = load_run(run_root)
+    board = lb.build(run.records, run.protocol)
+    examples, notes = render_examples(run, board, overlays, data_root, quiet)
+    notes = run.notes + notes
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    tmp.write_text(render(run, board, examples, notes), encoding="utf-8")
+    os.replace(tmp, out)
+    return notes
+
+
+def render(run: RunDir, board: pd.DataFrame, examples: list[Example], notes: list[str]) -> str:
+    groups = curves.rows(run.records, list(zip(board["combination"], board["weights"], strict=True)))
+    sections = [
+        _header(run, notes),
+        _section("Leaderboard", _explain_board(run), table(board)),
+        _section("Cumulative errors", "Share of all frames (failures included) under each error.",
+                 _png(curves.cumulative_errors(groups, run.protocol), "cumulative RTE and RRE")),
+        _section("Acc. against its thresholds", "Dashed: the protocol's thresholds, where each curve meets Acc.",
+                 _png(curves.accuracy_curves(groups, run.protocol), "Acc. against the RRE and RTE thresholds")),
+        _section("Latency", "Median per stage, over the frames whose pipeline ran to the end.",
+                 _png(curves.latency_bars(board), "per-stage latency")),
+        _section("Best and worst frames", _explain_examples(), "".join(_figure(e) for e in examples)),
+    ]
+    title = f"i2pbench report: {_dataset_name(run)}"
+    return (
+        f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{escape(title)}</title>'
+        f"<style>{CSS}</style></head>\n<body><h1>{escape(title)}</h1>\n{''.join(sections)}\n"
+        f"<script>{JS}</script></body></html>\n"
+    )
+
+
+def table(board: pd.DataFrame) -> str:
+    """The leaderboard as a sortable HTML table, best Acc. first."""
+    columns = [c for c in COLUMNS if c in board]
+    head = "".join(f"<th>{escape(c)}</th>" for c in columns)
+    body = "".join(
+        "<tr>" + "".join(_cell(row[c], row.get(SORT_BY.get(c, c))) for c in columns) + "</tr>\n"
+        for _, row in board.iterrows()
+    )
+    return f'<table class="sortable"><thead><tr>{head}</tr></thead><tbody>\n{body}</tbody></table>'
+
+
+def _cell(value: object, sort_value: object) -> str:
+    return f'<td data-sort="{escape(_sort_text(sort_value))}">{escape(_display(value))}</td>'
+
+
+def _display(value: object) -> str:
+    if isinstance(value, float | np.floating):
+        return "-" if np.isnan(value) else f"{value:.2f}"
+    return str(value)
+
+
+def _sort_text(value: object) -> str:
+    """Numbers as full-precision text, NaN as "" (sorted after every number)."""
+    if isinstance(value, float | np.floating):
+        return "" if np.isnan(value) else repr(float(value))
+    return str(value)
+
+
+def _section(title: str, explanation: str, body: str) -> str:
+    return f"<section><h2>{escape(title)}</h2><p class=meta>{escape(explanation)}</p>{body}</section>\n"
+
+
+def _png(fig, alt: str) -> str:
+    return _img(curves.png(fig), "image/png", alt)
+
+
+def _img(data: bytes, mime: str, alt: str) -> str:
+    return f'<img alt="{escape(alt)}" src="data:{mime};base64,{base64.b64encode(data).decode("ascii")}">'
+
+
+def _figure(example: Example) -> str:
+    caption = f"{example.title} ({example.errors})"
+    return f"<figure><figcaption>{escape(caption)}</figcaption>{_img(example.jpeg, 'image/jpeg', caption)}</figure>\n"
+
+
+def _dataset_name(run: RunDir) -> str:
+    first = run.records.iloc[0]
+    return f"{first.get('dataset', '?')}/{first.get('split', '?')}"
+
+
+def _header(run: RunDir, notes: list[str]) -> str:
+    commits = sorted({str(m.get("environment", {}).get("git_commit", "")) for m in run.meta} - {""})
+    facts = [
+        f"run: {run.root}",
+        f"data: {', '.join(f'{k}={v}' for k, v in run.dataset.items()) or 'not recorded'}",
+        f"protocol {run.protocol.identity()}: " + ", ".join(f"{k}={v}" for k, v in run.protocol.card().items()),
+        f"{len(run.records)} frame results, {len(run.meta)} invocation(s), code {', '.join(commits) or 'unknown'}",
+        f"generated {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC",
+    ]
+    items = "".join(f"<li>{escape(f)}</li>" for f in facts) + "".join(
+        f"<li class=note>{escape(n)}</li>" for n in notes
+    )
+    return f"<ul class=meta>{items}</ul>\n"
+
+
+def _explain_board(run: RunDir) -> str:
+    p = run.protocol
+    return (
+        f"Click a header to sort. Acc. counts frames with RTE < {p.acc_rte_m:g} m and RRE < {p.acc_rre_deg:g}° over "
+        f"all frames; RTE and RRE are mean ± std over frames with RTE < {p.filter_rte_m:g} m and "
+        f"RRE < {p.filter_rre_deg:g}°. Latency is per frame, in milliseconds."
+    )
+
+
+def _explain_examples() -> str:
+    return (
+        "LiDAR points projected with the initial pose (the calibration applied to the moved cloud), the ground truth "
+        "and the stored prediction; colour by distance, near warm and far cool. Under the ground truth the points "
+        "sit on the objects they hit."
+    )
