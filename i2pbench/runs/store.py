@@ -21,7 +21,6 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-PARQUET_MAGIC = b"PAR1"
 TEMP_SUFFIX = ".tmp"
 CORRUPT_SUFFIX = ".corrupt"
 
@@ -41,9 +40,6 @@ class ResultsStore:
 
     def path(self, key: str) -> Path:
         return self.frames_dir / f"{key}.parquet"
-
-    def has(self, key: str) -> bool:
-        return self.path(key).is_file()
 
     def put(self, key: str, record: dict[str, Any]) -> None:
         """Store one frame's record: pyarrow directly, uncompressed, as pandas' writer costs ~5x more per frame."""
@@ -71,7 +67,7 @@ class ResultsStore:
     def load(self, keys: list[str] | None = None) -> pd.DataFrame:
         """All records (or those with the given keys that exist and are readable), one row per frame."""
         if keys is None:
-            keys = sorted(p.stem for p in self.frames_dir.glob("*.parquet") if not p.name.startswith("."))
+            keys = sorted(p.stem for p in self.frames_dir.glob("*.parquet"))  # not temps (.tmp), set-asides (.corrupt)
         return pd.DataFrame([r for r in (self.get(k) for k in keys) if r is not None])
 
     def _set_aside(self, path: Path, exc: Exception) -> None:
