@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from .errors import DataError
 from .geometry import invert, make_transform, rot_z, transform_points
 from .types import Frame, SensorFrame
 
@@ -50,6 +51,9 @@ class Protocol:
 
     def apply(self, sensor: SensorFrame) -> Frame:
         """Turn a dataset frame into a registration problem with its ground truth."""
+        if not np.isfinite(sensor.points).all():
+            where = sensor.source or f"{sensor.dataset} frame {sensor.frame_id}"
+            raise DataError(f"{where}: the scan contains NaN or infinite values; datasets must drop such returns")
         T_rand = self.random_transform(sensor.dataset, sensor.frame_id)
         points = sensor.points.copy()
         points[:, :3] = transform_points(T_rand, sensor.points[:, :3].astype(np.float64)).astype(np.float32)

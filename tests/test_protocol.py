@@ -4,6 +4,7 @@ import sys
 import numpy as np
 import pytest
 
+from i2pbench.errors import DataError
 from i2pbench.geometry import invert, transform_points
 from i2pbench.protocol import Protocol
 from i2pbench.types import SensorFrame
@@ -65,3 +66,12 @@ def test_card_records_every_parameter_and_identity_changes_with_them():
     assert card["filter_rre_deg"] == 10.0 and card["filter_rte_m"] == 5.0
     assert card["translation_range_m"] == 10.0 and card["rotation_range_rad"] == pytest.approx(2 * np.pi)
     assert Protocol().identity() != Protocol(seed=1).identity()
+
+
+def test_a_scan_with_nan_points_is_refused_naming_its_source():
+    points = np.zeros((3, 4), np.float32)
+    points[1, 2] = np.nan
+    sensor = SensorFrame("kitti", "00/000002", np.zeros((4, 4, 3), np.uint8), points, np.zeros(3, np.int16),
+                         np.eye(3), np.eye(4), source="/data/00/velodyne/000002.bin")
+    with pytest.raises(DataError, match="/data/00/velodyne/000002.bin: the scan contains NaN"):
+        Protocol().apply(sensor)

@@ -10,7 +10,7 @@ from typing import Any
 
 COMPONENTS = {"encoder2d": "superpoint-cnn", "encoder3d": "pointnet2", "exchanger": "attention", "matcher": "lightglue"}
 FULL_KEYPOINTS = 3000
-SMALL_KEYPOINTS = 1024
+SMALL_KEYPOINTS = 2048
 
 FULL: dict[str, dict[str, Any]] = {kind: {} for kind in COMPONENTS}
 
@@ -19,11 +19,11 @@ SMALL: dict[str, dict[str, Any]] = {
     "encoder3d": {
         "descriptor_dim": 128,
         "num_points": 8192,
-        "sa1": {"npoint": 2048, "radius": 0.1, "nsample": 16, "mlp": (32, 32, 64)},
-        "sa2": {"npoint": 512, "radius": 0.2, "nsample": 16, "mlp": (64, 64, 128)},
-        "fp_mlp": (128,),
+        "sa1": {"npoint": 2048, "radius": 0.1, "nsample": 32, "mlp": (64, 64, 128)},
+        "sa2": {"npoint": 512, "radius": 0.2, "nsample": 32, "mlp": (128, 128, 128)},
+        "fp_mlp": (128, 128),
         "head_mlp": (128,),
     },
-    "exchanger": {"descriptor_dim": 128, "num_blocks": 3, "num_heads": 4},
+    "exchanger": {"descriptor_dim": 128, "num_blocks": 3},
     "matcher": {"descriptor_dim": 128},
 }
