@@ -9,6 +9,13 @@ if ! ldconfig -p 2>/dev/null | grep -q libusb-1.0.so.0; then  # open3d imports o
     $SUDO apt-get update -qq && $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
 fi
 
+if ! command -v chromium >/dev/null 2>&1; then  # headless, renders `i2pbench report` pages in the tests (else skipped)
+    if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
+    { $SUDO apt-get update -qq \
+        && $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; } \
+        || echo "install.sh: chromium not installed; the HTML report rendering tests will be skipped" >&2
+fi
+
 PYTHON=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
