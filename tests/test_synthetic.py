@@ -66,10 +66,11 @@ def test_same_seed_gives_identical_files(val_split, val_frames, tmp_path):
     assert not np.array_equal(simulate(1, "01", 0)[0][:1000], val_frames[0].points[:1000])
 
 
-# Edge agreement. Measured on val frames 01/000000-000001 (seed 0), pooled: 67% of depth-edge points and 71% of
-# reflectance-edge points land on strong image gradients against 22% of all in-image points (3.1x and 3.3x). On the six
-# real KITTI frames in ../shared/data the same measure gives 65% and 73% against 42% (1.6x, 1.75x): edge points hit
-# image edges as often as on real data, but real images hold about twice as many texture edges.
+# Edge agreement. Measured on val frames 01/000000-000001 (seed 0, generator v4), pooled: 63% of depth-edge points and
+# 82% of reflectance-edge points land on strong image gradients against 17% of all in-image points (3.7x and 4.9x;
+# over val frames 0-9: 3.3x and 3.5x). On the six real KITTI frames in ../shared/data the same measure gives 65% and
+# 73% against 42% (1.6x, 1.75x): edge points hit image edges as often as on real data, but real images hold about
+# twice as many texture edges.
 def strong_gradients(image: np.ndarray, threshold: float = 100.0, radius_px: int = 2) -> np.ndarray:
     """[H x W] bool: within radius_px of a pixel whose Sobel gradient magnitude exceeds threshold."""
     grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32)
@@ -117,12 +118,12 @@ def on_edges(frames: list[SensorFrame], select) -> tuple[float, float]:
 
 def test_depth_discontinuities_project_onto_image_edges(val_frames):
     edge, base = on_edges(val_frames, depth_edges)
-    assert edge > 2.5 * base, f"depth edges on image edges {edge:.2f} vs random points {base:.2f}"
+    assert edge > 2.0 * base, f"depth edges on image edges {edge:.2f} vs random points {base:.2f}"
 
 
 def test_reflectance_discontinuities_project_onto_image_edges(val_frames):
     edge, base = on_edges(val_frames, reflectance_edges)
-    assert edge > 2.5 * base, f"reflectance edges on image edges {edge:.2f} vs random points {base:.2f}"
+    assert edge > 2.0 * base, f"reflectance edges on image edges {edge:.2f} vs random points {base:.2f}"
 
 
 def test_miscalibration_breaks_the_agreement(val_frames):

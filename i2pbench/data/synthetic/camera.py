@@ -27,7 +27,7 @@ def pixel_rays(camera: Camera, lidar_pose: np.ndarray) -> tuple[np.ndarray, np.n
         _RAYS[key] = (T_lidar_cam[:3, 3].copy(), dirs)
     origin, dirs = _RAYS[key]
     R, t = lidar_pose[:3, :3], lidar_pose[:3, 3]
-    return R @ origin + t, dirs @ R.T
+    return R @ origin + t, np.einsum("ij,kj->ik", dirs, R)  # einsum: numpy matmul is slow on [N x 3] here
 
 
 def render(caster: Caster, camera: Camera, lidar_pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -48,7 +48,7 @@ def render(caster: Caster, camera: Camera, lidar_pose: np.ndarray, rng: np.rando
 
 
 def _shade(caster: Caster, hits: Hits, albedo: np.ndarray, light: Lighting) -> np.ndarray:
-    lambert = np.clip(hits.normals @ light.sun, 0.0, None)
+    lambert = np.clip(np.einsum("ij,j->i", hits.normals, light.sun), 0.0, None)
     lit = np.flatnonzero(lambert > 0)
     shadow = caster.occluded(hits.points[lit] + hits.normals[lit] * 0.01, light.sun)
     lambert[lit[shadow]] = 0.0

@@ -46,14 +46,16 @@ def ensure_sequence(root: Path, sequence: str, n_frames: int, seed: int, workers
 
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{sequence}-", dir=target.parent)) / sequence
-    write_sequence(tmp, n_frames, seed, workers)
-    (tmp / MARKER).write_text(json.dumps(wanted, indent=1) + "\n")
     try:
-        os.rename(tmp, target)
-    except OSError:  # another process finished first; keep its copy if it matches
-        if not (target / MARKER).is_file() or json.loads((target / MARKER).read_text()) != wanted:
-            raise
-    shutil.rmtree(tmp.parent, ignore_errors=True)
+        write_sequence(tmp, n_frames, seed, workers)
+        (tmp / MARKER).write_text(json.dumps(wanted, indent=1) + "\n")
+        try:
+            os.rename(tmp, target)
+        except OSError:  # another process finished first; keep its copy if it matches
+            if not (target / MARKER).is_file() or json.loads((target / MARKER).read_text()) != wanted:
+                raise
+    finally:
+        shutil.rmtree(tmp.parent, ignore_errors=True)
     return target
 
 

@@ -18,7 +18,7 @@ def scan(caster: Caster, lidar: Lidar, rng: np.random.Generator) -> tuple[np.nda
     ring = np.repeat(np.arange(len(lidar.elevations_deg), dtype=np.int16), lidar.steps)
     step = np.tile(np.arange(lidar.steps), len(lidar.elevations_deg))
     R, origin = lidar.pose[:3, :3], lidar.pose[:3, 3]
-    hits = caster.cast(origin, dirs @ R.T)
+    hits = caster.cast(origin, np.einsum("ij,kj->ik", dirs, R))
     keep = np.flatnonzero((hits.t < lidar.max_range) & (rng.random(len(hits.t)) > 0.01))
     rows = hits.rows[keep]
     _, albedo_ir = surface(caster.scene, hits, keep)
