@@ -17,6 +17,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--conf", action="append", default=[], metavar="KIND.KEY=VALUE", help="component config override")
     add_data_options(p)
     p.add_argument("--weights", default="auto", help="'auto', 'untrained', or a checkpoint path")
+    p.add_argument("--device", default="auto", help="where learned stages run: auto (cuda if available), cpu, cuda")
     p.add_argument("--seed", type=int, default=0, help="protocol seed for the random transform")
     p.add_argument("--out", help="PNG path (default viz/<dataset>-<split>-<frame>.png)")
     p.add_argument("--edges", action="store_true", help="add a panel of the 2D and 3D edge points")
@@ -44,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
     from ..report.trace import trace
     from ..runs.environment import fix_threads
     from ..runs.runner import prepare
+    from ..training import pick_device
 
     fix_threads()
     registry = default_registry()
@@ -53,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         raise PluginError(f"viz draws one combination, these options give {len(combinations)}: {labels}")
     dataset = open_dataset(registry, args)
     frame_id = resolve_frame(dataset.frame_ids(), args.frame)
-    job = prepare(registry, combinations, args.weights)[0]
+    job = prepare(registry, combinations, args.weights, str(pick_device(args.device)))[0]
     frame = Protocol(seed=args.seed).apply(dataset.load(frame_id))
     result = trace(job.pipeline, frame)
     out = args.out or f"viz/{dataset.name}-{dataset.split}-{frame_id.replace('/', '-')}.png"
