@@ -27,28 +27,27 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--val-frames", type=int, default=20)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="auto")
-    p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--threads", type=int, default=None, help="torch, OpenCV and BLAS threads (default min(4, cores))")
     p.add_argument("--quiet", action="store_true")
 
 
 def _combination(registry, args: argparse.Namespace):
     from ..grid import base_combinations, expand, parse_conf_overrides
 
-    bases = base_combinations(registry, args.preset)[:1]
     choices = {kind: [getattr(args, kind)] for kind in STAGE_OPTIONS if getattr(args, kind)}
+    bases = base_combinations(registry, args.preset, stages_named=bool(choices))[:1]
     return expand(bases, choices, parse_conf_overrides(args.conf))[0]
 
 
 def run(args: argparse.Namespace) -> int:
-    import torch
     from tqdm import tqdm
 
     from ..pipeline import Pipeline
     from ..plugins import default_registry
+    from ..runs.environment import fix_threads
     from ..training import TrainConfig, Trainer, training_meta
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    fix_threads(args.threads)
     registry = default_registry()
     pipeline = Pipeline.build(registry, _combination(registry, args))
     data_conf = {"root": args.data_root} if args.data_root else {}
