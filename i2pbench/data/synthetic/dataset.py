@@ -68,7 +68,7 @@ def _retire(target: Path) -> None:
 
 def generate(root: Path | str | None = None, n_train: int = 400, n_val: int = 20, n_test: int = 40, seed: int = 0,
              workers: int | None = None) -> Path:
-    """Generate (or validate) all three splits under root (default ~/.cache/i2pbench/synthetic-v1-seed{seed})."""
+    """Generate (or reuse) all three splits under root (default ~/.cache/i2pbench/synthetic-v{version}-seed{seed})."""
     root = Path(root).expanduser() if root else default_root(seed)
     for split, n in (("train", n_train), ("val", n_val), ("test", n_test)):
         ensure_sequence(root, SPLIT_SEQUENCES[split], n, seed, workers)
@@ -114,5 +114,6 @@ class SyntheticStreets(Dataset):
         return read_frame(self.sequence_dir(), stem, 2, self.name, self.match_radius_px)
 
     def identity(self) -> dict[str, Any]:
-        return {**super().identity(), "root": str(self.root), "seed": int(self.conf["seed"]),
-                "frames": self.n_frames, "generator_version": GENERATOR_VERSION}
+        """Generator version, seed and frame count fix the data; the folder it sits in does not."""
+        return {"dataset": self.name, "split": self.split, "seed": int(self.conf["seed"]), "frames": self.n_frames,
+                "generator_version": GENERATOR_VERSION}
