@@ -66,11 +66,11 @@ def test_same_seed_gives_identical_files(val_split, val_frames, tmp_path):
     assert not np.array_equal(simulate(1, "01", 0)[0][:1000], val_frames[0].points[:1000])
 
 
-# Edge agreement. Measured on val frames 01/000000-000001 (seed 0, generator v4), pooled: 63% of depth-edge points and
-# 82% of reflectance-edge points land on strong image gradients against 17% of all in-image points (3.7x and 4.9x;
-# over val frames 0-9: 3.3x and 3.5x). On the six real KITTI frames in ../shared/data the same measure gives 65% and
-# 73% against 42% (1.6x, 1.75x): edge points hit image edges as often as on real data, but real images hold about
-# twice as many texture edges.
+# Edge agreement. Measured on val frames 01/000000-000001 (seed 0, generator v5), pooled: 52% of depth-edge points and
+# 75% of reflectance-edge points land on strong image gradients against 18% of all in-image points (2.8x and 4.1x;
+# over val frames 0-9: 3.0x and 3.3x). On the six real KITTI frames in ../shared/data the same measure gives 65% and
+# 73% against 42% (1.6x, 1.75x): edge points hit image edges about as often as on real data, but real images hold
+# about twice as many texture edges.
 def strong_gradients(image: np.ndarray, threshold: float = 100.0, radius_px: int = 2) -> np.ndarray:
     """[H x W] bool: within radius_px of a pixel whose Sobel gradient magnitude exceeds threshold."""
     grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32)

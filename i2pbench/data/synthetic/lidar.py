@@ -18,11 +18,12 @@ def scan(caster: Caster, lidar: Lidar, rng: np.random.Generator) -> tuple[np.nda
     ring = np.repeat(np.arange(len(lidar.elevations_deg), dtype=np.int16), lidar.steps)
     step = np.tile(np.arange(lidar.steps), len(lidar.elevations_deg))
     R, origin = lidar.pose[:3, :3], lidar.pose[:3, 3]
-    hits = caster.cast(origin, np.einsum("ij,kj->ik", dirs, R))
+    world = np.einsum("ij,kj->ik", dirs, R)
+    hits = caster.cast(origin, world)
     keep = np.flatnonzero((hits.t < lidar.max_range) & (rng.random(len(hits.t)) > 0.01))
     rows = hits.rows[keep]
     _, albedo_ir = surface(caster.scene, hits, keep)
-    cos_inc = -np.einsum("ij,ij->i", hits.normals[keep], dirs[rows])
+    cos_inc = -np.einsum("ij,ij->i", hits.normals[keep], world[rows])
     t = hits.t[keep]
     noise = np.clip(rng.normal(0, lidar.range_noise, len(rows)), -3 * lidar.range_noise, 3 * lidar.range_noise)
     t = t + noise + _porosity(caster, hits.tri[keep], rng)

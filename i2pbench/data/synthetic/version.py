@@ -1,3 +1,3 @@
 """Version of the synthetic generator: bump it whenever the output for a given seed changes, so caches regenerate."""
 
-GENERATOR_VERSION = 4
+GENERATOR_VERSION = 5
