@@ -9,6 +9,7 @@ from .attention import AttentionExchanger
 from .matching import LightGlueMatcher
 from .pointnet2 import PointNet2Encoder
 from .presets import register_presets  # noqa: F401
+from .shipped import shipped_weights
 from .superpoint import SuperPointEncoder
 
 
@@ -30,3 +31,9 @@ def register_exchangers(register: Register) -> None:
 @hookimpl
 def register_matchers(register: Register) -> None:
     register(LightGlueMatcher)
+
+
+@hookimpl
+def register_weights(register: Register) -> None:
+    for path in shipped_weights():
+        register(path)

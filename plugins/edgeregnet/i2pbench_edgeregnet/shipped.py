@@ -1,0 +1,36 @@
+"""The combination `i2pbench run` uses by default, and the checkpoints shipped with the package.
+
+The shipped checkpoint was trained on this CPU, so it is the small variant (configs.SMALL); the default pipeline pins
+exactly its stage configs, which is what lets `--weights auto` find it. The paper-size model has no shipped weights
+and runs as `untrained` unless given a checkpoint.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from .configs import COMPONENTS, FULL, FULL_KEYPOINTS, SMALL, SMALL_KEYPOINTS
+
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+EDGES = {"extractor2d": "lsd", "extractor3d": "depth+reflectance"}
+SOLVER = {"solver": "epnp-ransac"}
+
+
+def combination(confs: dict[str, dict[str, Any]], keypoints: int, **stages: str) -> dict[str, Any]:
+    """A preset row: EdgeRegNet's stages (overridable), the stage configs, and the extractors' keypoint cap."""
+    names = {**EDGES, **COMPONENTS, **SOLVER, **stages}
+    caps = {kind: {"max_keypoints": keypoints} for kind in EDGES}
+    return {**names, "confs": {**confs, **caps}}
+
+
+def small(**stages: str) -> dict[str, Any]:
+    return combination(SMALL, SMALL_KEYPOINTS, **stages)
+
+
+def full(**stages: str) -> dict[str, Any]:
+    return combination(FULL, FULL_KEYPOINTS, **stages)
+
+
+def shipped_weights() -> list[Path]:
+    return sorted(WEIGHTS_DIR.glob("*.pt"))
