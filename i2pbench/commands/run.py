@@ -41,6 +41,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="recompute frames already in the cache")
     p.add_argument("--threads", type=int, default=None, help="torch and OpenCV threads (default min(4, cores))")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_scale_options(p)
+
+
+def add_scale_options(p: argparse.ArgumentParser) -> None:
+    """Parallel runs (docs/scale-out.md): worker processes here, or actors on a Ray cluster."""
+    p.add_argument("--workers", type=int, help="worker processes (local; default 1, serial) or Ray actors (default: "
+                   "as many as the cluster's CPUs hold)")  # fmt: skip
+    p.add_argument("--executor", choices=("local", "ray"), default="local", help="where workers run")
+    p.add_argument("--address", help="Ray cluster address (auto: the one `ray start` began; default: a local Ray)")
+    p.add_argument("--threads-per-worker", type=int, default=1, help="torch/OpenCV/BLAS threads in each worker")
+    p.add_argument("--chunk-size", type=int, default=8, help="most frames of one combination in one worker task")
 
 
 def add_data_options(p: argparse.ArgumentParser) -> None:
@@ -133,6 +144,7 @@ def _meta(args, threads: int, protocol, dataset, frame_ids: list[str], combinati
         "argv": sys.argv,
         "threads": threads,
         "device": args.device,
+        "executor": {k: getattr(args, k) for k in ("executor", "workers", "threads_per_worker", "address")},
         "protocol": protocol.card(),
         "dataset": dataset.identity(),
         "frames": frame_ids,
@@ -157,10 +169,17 @@ def _run_grid(registry, combinations, dataset, frame_ids, protocol, store, invoc
     """run_grid with a progress bar (ETA) over every frame of every combination, cached ones included."""
     from tqdm import tqdm
 
+    from ..runs import executors
     from ..runs.runner import run_grid
 
     total = len(frame_ids) * len(combinations)
+    executor = executors.make_executor(args.executor, args.workers, args.threads_per_worker, args.address, args.device)
     with tqdm(total=total, disable=args.quiet, unit="frame", file=sys.stderr, dynamic_ncols=True) as bar:
+        if executor is not None:
+            return executors.run_grid(
+                registry, combinations, dataset, protocol, store, executor, weights=args.weights, frame_ids=frame_ids,
+                overwrite=args.overwrite, progress=bar.update, invocation=invocation, chunk_size=args.chunk_size,
+            )  # fmt: skip
         return run_grid(
             registry,
             combinations,

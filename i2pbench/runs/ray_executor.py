@@ -1,0 +1,182 @@
+"""Run a grid's tasks on a Ray cluster (the optional extra `i2pbench[ray]`, imported only when used).
+
+Workers are Ray actors, each built once from the work put into the object store once (`ray.put`): the weights travel
+to each node once and are deserialised once per actor, never per task or frame. An actor asks for `num_gpus` when
+the cluster has GPUs and its jobs have learned stages, else for CPUs only.
+
+An actor streams one record per frame back to the driver, which writes it to the store as it arrives, so results
+need no shared filesystem and a lost worker costs only its unfinished frames: Ray restarts the actor
+(`max_restarts`) and the driver resubmits the chunk's frames that never came back. The driver does the retrying
+rather than Ray's own task retry because the latter would rerun the whole chunk; it drops any frame it already has,
+so a retry neither duplicates nor loses a result.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from collections import deque
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Any
+
+from ..errors import I2PBenchError
+from .executors import Deliver, Result, Task, Work, Worker
+from .store import ResultsStore
+
+CPU, GPU = "cpu", "gpu"
+
+
+def import_ray() -> ModuleType:
+    try:
+        import ray
+    except ImportError as exc:
+        raise I2PBenchError(
+            "--executor ray needs Ray: pip install 'i2pbench[ray]' (or pip install 'ray>=2.9')"
+        ) from exc
+    return ray
+
+
+class RayWorker:
+    """The actor's body: a `Worker` built on the first task, then streaming each frame's result once computed.
+
+    Each call carries the work as a reference inside a list, which Ray passes on unresolved; only the first call
+    fetches it. A constructor argument would do the same once, but Ray cannot restart an actor whose constructor
+    took an object-store reference (ray-project/ray#53727), and says so on every run.
+    """
+
+    def __init__(self, threads: int, gpu: bool) -> None:
+        self.threads, self.device = threads, "cuda" if gpu else "cpu"
+        self.worker: Worker | None = None
+
+    def run(self, work: list[Any], task: Task) -> Iterator[Result]:
+        if self.worker is None:
+            import ray
+
+            self.worker = Worker(ray.get(work[0]), self.threads, self.device)
+        yield from self.worker.run(task)
+
+
+@dataclass
+class Attempt:
+    """A chunk in flight on one actor: what has not come back yet, and how many times it was resubmitted."""
+
+    actor: Any
+    shape: str
+    task: Task
+    retries: int = 0
+
+
+class RayExecutor:
+    """Actors on a Ray cluster (`address`: "auto", "ray://host:10001", ...; None starts a local instance)."""
+
+    def __init__(
+        self,
+        address: str | None = None,
+        workers: int | None = None,
+        threads: int = 1,
+        gpus_per_worker: float = 1.0,
+        max_retries: int = 3,
+    ) -> None:
+        self.ray = import_ray()
+        self.address, self.requested, self.threads = address, workers, threads
+        self.gpus_per_worker, self.max_retries = gpus_per_worker, max_retries
+        self._owns_ray = False
+        self._work_ref: Any = None
+        self._jobs_gpu: list[bool] = []
+        self.actors: dict[str, list[Any]] = {}
+
+    @property
+    def workers(self) -> int:
+        """Actors the cluster can hold at once (or as asked): the driver sizes its chunks by it."""
+        return self.requested or max(1, self._capacity(CPU))
+
+    def start(self, work: Work, store: ResultsStore) -> None:
+        """Join (or start) Ray and put the work, weights included, into the object store once."""
+        if not self.ray.is_initialized():
+            cpus = self.requested * self.threads if self.address is None and self.requested else None
+            self.ray.init(address=self.address, num_cpus=cpus, include_dashboard=False, logging_level=logging.WARNING)
+            self._owns_ray = True
+        gpus = self.ray.cluster_resources().get("GPU", 0) > 0
+        self._jobs_gpu = [gpus and bool(job.pipeline.learned_modules()) for job in work.jobs]
+        self._work_ref = self.ray.put(work)
+
+    def run(self, tasks: Sequence[Task], deliver: Deliver) -> None:
+        """Keep every actor busy with a chunk; deliver each frame as it streams back; resubmit what a lost actor
+        never sent."""
+        queues = {CPU: deque[Attempt](), GPU: deque[Attempt]()}
+        for task in tasks:
+            shape = GPU if self._jobs_gpu[task.job] else CPU
+            queues[shape].append(Attempt(None, shape, task))
+        idle = {shape: deque(self._actors(shape, len(queue))) for shape, queue in queues.items() if queue}
+        inflight: dict[Any, Attempt] = {}
+        while inflight or any(queues.values()):
+            self._dispatch(queues, idle, inflight)
+            [ready], _ = self.ray.wait(list(inflight), num_returns=1)
+            self._advance(ready, inflight, idle, queues, deliver)
+
+    def close(self) -> None:
+        for actor in (a for actors in self.actors.values() for a in actors):
+            self.ray.kill(actor)
+        self.actors = {}
+        if self._owns_ray:
+            self.ray.shutdown()
+            self._owns_ray = False
+
+    def _dispatch(self, queues: dict[str, deque[Attempt]], idle: dict[str, deque], inflight: dict) -> None:
+        for shape, queue in queues.items():
+            while queue and idle.get(shape):
+                attempt = queue.popleft()
+                attempt.actor = idle[shape].popleft()
+                inflight[attempt.actor.run.remote([self._work_ref], attempt.task)] = attempt
+
+    def _advance(self, generator: Any, inflight: dict, idle: dict, queues: dict, deliver: Deliver) -> None:
+        """Take the next frame from a ready stream; a finished stream frees its actor, a broken one is retried."""
+        attempt = inflight[generator]
+        try:
+            result: Result = self.ray.get(next(generator))
+        except StopIteration:
+            del inflight[generator]
+            idle[attempt.shape].append(attempt.actor)
+            return
+        except (self.ray.exceptions.RayActorError, self.ray.exceptions.ObjectLostError) as exc:
+            del inflight[generator]
+            idle[attempt.shape].append(attempt.actor)  # Ray restarts it (max_restarts)
+            queues[attempt.shape].appendleft(self._retry(attempt, exc))
+            return
+        deliver([result])
+        attempt.task = _without(attempt.task, result.frame_id)
+
+    def _retry(self, attempt: Attempt, exc: Exception) -> Attempt:
+        if attempt.retries >= self.max_retries:
+            raise I2PBenchError(
+                f"a Ray worker was lost {attempt.retries + 1} times on frames {list(attempt.task.frame_ids)}; "
+                f"finished frames are stored, so running the same command again resumes ({exc})"
+            ) from exc
+        lost = f"i2pbench: a Ray worker was lost ({type(exc).__name__}); resubmitting its unfinished frame(s)"
+        print(f"{lost}: {list(attempt.task.frame_ids)}", file=sys.stderr)
+        return Attempt(None, attempt.shape, attempt.task, attempt.retries + 1)
+
+    def _actors(self, shape: str, tasks: int) -> list[Any]:
+        """This shape's actors, created on first need: as many as asked, the cluster holds, and tasks can use."""
+        if shape not in self.actors:
+            n = max(1, min(self.requested or self._capacity(shape), self._capacity(shape) or 1, tasks))
+            options = {"num_cpus": self.threads, "max_restarts": self.max_retries, "max_task_retries": 0}
+            if shape == GPU:
+                options["num_gpus"] = self.gpus_per_worker
+            actor_class = self.ray.remote(RayWorker).options(**options)
+            self.actors[shape] = [actor_class.remote(self.threads, shape == GPU) for _ in range(n)]
+        return self.actors[shape]
+
+    def _capacity(self, shape: str) -> int:
+        resources = self.ray.cluster_resources() if self.ray.is_initialized() else {}
+        if shape == GPU:
+            return int(resources.get("GPU", 0) // self.gpus_per_worker)
+        return int(resources.get("CPU", 0) // self.threads)
+
+
+def _without(task: Task, frame_id: str) -> Task:
+    """The task less one frame that came back, so a retry resubmits only what is still missing."""
+    keep = [i for i, f in enumerate(task.frame_ids) if f != frame_id]
+    return Task(task.job, tuple(task.frame_ids[i] for i in keep), tuple(task.keys[i] for i in keep))
