@@ -8,6 +8,7 @@ import sys
 from collections.abc import Sequence
 
 from .errors import I2PBenchError
+from .progress import set_quiet
 
 COMMANDS = ("plugins", "run", "train", "diagnose", "data", "compare", "viz", "report")
 
@@ -22,6 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    set_quiet(getattr(args, "quiet", False))  # reaches progress bars deep in library code and worker processes
     try:
         return importlib.import_module(f"i2pbench.commands.{args.command}").run(args)
     except I2PBenchError as exc:

@@ -16,6 +16,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     synth.add_argument("--test", type=int, default=None, help="frames in the test split")
     synth.add_argument("--seed", type=int, default=0)
     synth.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    synth.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ...progress import bar
 from .camera import render
 from .lidar import scan
 from .raycast import Caster
@@ -51,17 +52,20 @@ def write_sequence(sequence_dir: Path, n_frames: int, seed: int, workers: int | 
         (sequence_dir / sub).mkdir(parents=True, exist_ok=True)
     (sequence_dir / "calib.txt").write_text(calib_text())
     workers = min(workers or os.cpu_count() or 1, n_frames)
-    if workers <= 1:
-        for index in range(n_frames):
-            write_frame(sequence_dir, seed, index)
-        return
-    # forkserver: workers start from a clean process (no inherited ray-caster threads) and import once.
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload([__name__])
-    with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-        jobs = [pool.submit(write_frame, sequence_dir, seed, index, 1) for index in range(n_frames)]
-        for job in jobs:
-            job.result()
+    with bar(n_frames, f"synthesising {sequence_dir.name}") as progress:
+        if workers <= 1:
+            for index in range(n_frames):
+                write_frame(sequence_dir, seed, index)
+                progress.update()
+            return
+        # forkserver: workers start from a clean process (no inherited ray-caster threads) and import once.
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload([__name__])
+        with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+            jobs = [pool.submit(write_frame, sequence_dir, seed, index, 1) for index in range(n_frames)]
+            for job in jobs:
+                job.result()
+                progress.update()
 
 
 def generate_kitti(out_dir: Path, sequences: dict[str, int], seed: int = 0, workers: int | None = None) -> Path:
