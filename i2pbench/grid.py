@@ -12,10 +12,13 @@ import yaml
 
 from .components import STAGE_ORDER
 from .errors import PluginError
-from .pipeline import NONE, Combination
+from .pipeline import NONE, REQUIRED_STAGES, Combination
 from .plugins import Registry
 
 GRID_KEYS = ("base", "grid", "confs")
+
+
+OPTIONAL_STAGES = tuple(k for k in STAGE_ORDER if k not in REQUIRED_STAGES)
 
 
 def parse_conf_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
@@ -50,11 +53,14 @@ def expand(
     bases: Sequence[Mapping[str, str]],
     choices: Mapping[str, Sequence[str]],
     confs: Mapping[str, Mapping[str, Any]] | None = None,
+    registry: Registry | None = None,
 ) -> list[Combination]:
     """The product of the per-stage choices, applied over each base combination (duplicates dropped).
 
     A base may carry "confs" ({kind: {key: value}}): config a preset pins, e.g. a smaller width its weights used;
-    a base conf applies only while its stage keeps the base's component, and `confs` overrides it.
+    a base conf applies only while its stage keeps the base's component, and `confs` overrides it. With a registry,
+    stages taken from the base whose outputs no later stage consumes are dropped (`--matcher oracle` over the
+    default pipeline needs no encoders); stages the user named are always kept.
     """
     kinds = [k for k in STAGE_ORDER if choices.get(k)]
     seen, out = set(), []
@@ -63,11 +69,28 @@ def expand(
         base_confs = base.pop("confs", {})
         for values in itertools.product(*(choices[k] for k in kinds)):
             names = {**base, **dict(zip(kinds, values, strict=True))}
+            if registry is not None:
+                names = prune_unconsumed(registry, names, keep=set(kinds))
             combination = Combination(names, _merge_confs(names, base, base_confs, confs or {}))
             if combination.key() not in seen:
                 seen.add(combination.key())
                 out.append(combination)
     return out
+
+
+def prune_unconsumed(registry: Registry, names: Mapping[str, str], keep: set[str]) -> dict[str, str]:
+    """Drop optional stages (encoders, exchanger) whose outputs nothing downstream consumes, unless in `keep`."""
+    names, needed = dict(names), set()
+    for kind in reversed(STAGE_ORDER):
+        name = names.get(kind, NONE)
+        if name == NONE:
+            continue
+        component = registry.component(kind, name)
+        if kind in OPTIONAL_STAGES and kind not in keep and not component.provides & needed:
+            names[kind] = NONE
+            continue
+        needed |= component.consumes
+    return names
 
 
 def _merge_confs(

@@ -110,3 +110,18 @@ def test_exchange_ablation_is_table_iv():
     ]
     assert set(_names(combos, "encoder2d", "encoder3d", "matcher", "solver")) == {LEARNED}
     prepare(registry, combos)
+
+
+def test_stages_from_the_base_that_nothing_consumes_are_dropped_but_named_ones_kept():
+    from i2pbench.grid import base_combinations, expand
+    from i2pbench.plugins import default_registry
+
+    registry = default_registry()
+    bases = base_combinations(registry, None)
+    oracle = expand(bases, {"matcher": ["oracle"]}, registry=registry)[0]
+    assert oracle.label == "lsd > depth+reflectance > oracle > epnp-ransac"
+    assert "matcher" not in oracle.confs  # lightglue's pinned width does not leak onto the oracle
+    named = expand(bases, {"matcher": ["oracle"], "encoder2d": ["superpoint-cnn"]}, registry=registry)[0]
+    assert named.name("encoder2d") == "superpoint-cnn" and named.name("encoder3d") == "none"
+    cosine = expand(bases, {"matcher": ["cosine"]}, registry=registry)[0]
+    assert cosine.name("exchanger") == "attention" and cosine.name("encoder3d") == "pointnet2"

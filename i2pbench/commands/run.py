@@ -99,10 +99,9 @@ def _combinations(registry, args: argparse.Namespace):
     confs = parse_conf_overrides(args.conf)
     if args.grid:
         grid = load_grid_file(args.grid)
-        bases = [{**b, **grid.base} for b in bases]
-        choices = {**grid.grid, **choices}
+        choices = {**{k: [v] for k, v in grid.base.items()}, **grid.grid, **choices}
         confs = {k: {**grid.confs.get(k, {}), **confs.get(k, {})} for k in {*grid.confs, *confs}}
-    return expand(bases, choices, confs)
+    return expand(bases, choices, confs, registry)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -36,7 +36,7 @@ def _combination(registry, args: argparse.Namespace):
 
     choices = {kind: [getattr(args, kind)] for kind in STAGE_OPTIONS if getattr(args, kind)}
     bases = base_combinations(registry, args.preset, stages_named=bool(choices))[:1]
-    return expand(bases, choices, parse_conf_overrides(args.conf))[0]
+    return expand(bases, choices, parse_conf_overrides(args.conf), registry)[0]
 
 
 def run(args: argparse.Namespace) -> int:
