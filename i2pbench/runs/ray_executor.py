@@ -107,8 +107,7 @@ class RayExecutor:
         never sent."""
         queues = {CPU: deque[Attempt](), GPU: deque[Attempt]()}
         for task in tasks:
-            shape = GPU if self._jobs_gpu[task.job] else CPU
-            queues[shape].append(Attempt(None, shape, task))
+            queues[self.shape(task.job)].append(Attempt(None, self.shape(task.job), task))
         idle = {shape: deque(self._actors(shape, len(queue))) for shape, queue in queues.items() if queue}
         inflight: dict[Any, Attempt] = {}
         while inflight or any(queues.values()):
@@ -123,6 +122,17 @@ class RayExecutor:
         if self._owns_ray:
             self.ray.shutdown()
             self._owns_ray = False
+
+    def shape(self, job: int) -> str:
+        """GPU for a job with learned stages on a cluster with GPUs; CPU otherwise."""
+        return GPU if self._jobs_gpu[job] else CPU
+
+    def actor_options(self, shape: str) -> dict[str, Any]:
+        """Resources an actor of this shape reserves, and how often Ray restarts it when its process is lost."""
+        options: dict[str, Any] = {"num_cpus": self.threads, "max_restarts": self.max_retries, "max_task_retries": 0}
+        if shape == GPU:
+            options["num_gpus"] = self.gpus_per_worker
+        return options
 
     def _dispatch(self, queues: dict[str, deque[Attempt]], idle: dict[str, deque], inflight: dict) -> None:
         for shape, queue in queues.items():
@@ -162,10 +172,7 @@ class RayExecutor:
         """This shape's actors, created on first need: as many as asked, the cluster holds, and tasks can use."""
         if shape not in self.actors:
             n = max(1, min(self.requested or self._capacity(shape), self._capacity(shape) or 1, tasks))
-            options = {"num_cpus": self.threads, "max_restarts": self.max_retries, "max_task_retries": 0}
-            if shape == GPU:
-                options["num_gpus"] = self.gpus_per_worker
-            actor_class = self.ray.remote(RayWorker).options(**options)
+            actor_class = self.ray.remote(RayWorker).options(**self.actor_options(shape))
             self.actors[shape] = [actor_class.remote(self.threads, shape == GPU) for _ in range(n)]
         return self.actors[shape]
 
