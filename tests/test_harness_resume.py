@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from i2pbench import leaderboard
-from i2pbench.grid import expand
+from i2pbench.grid import base_combinations, expand
 from i2pbench.plugins import default_registry
 from i2pbench.protocol import Protocol
 from i2pbench.runs.invocation import history
@@ -76,7 +76,10 @@ def test_a_sigkilled_run_resumes_to_the_uninterrupted_result(shared_data, tmp_pa
     from i2pbench.data.kitti import KittiOdometry
 
     kitti = KittiOdometry("all", {"root": str(kitti_root)})
-    records = run_grid(default_registry(), expand([BASE], GRID), kitti, Protocol(), ResultsStore(tmp_path / "clean"))
+    registry = default_registry()  # the combinations exactly as the CLI builds them: over the default pipeline
+    choices = {**{kind: [name] for kind, name in BASE.items()}, **GRID}
+    combinations = expand(base_combinations(registry, None), choices, None, registry)
+    records = run_grid(registry, combinations, kitti, Protocol(), ResultsStore(tmp_path / "clean"))
     pd.testing.assert_frame_equal(_results(ResultsStore(runs / "kitti-all").load()), _results(records))
     board, clean = leaderboard.read(runs / "board.csv"), leaderboard.build(records)
     latency = leaderboard.latency_columns(clean)
