@@ -57,8 +57,9 @@ def expand(
 ) -> list[Combination]:
     """The product of the per-stage choices, applied over each base combination (duplicates dropped).
 
-    A base may carry "confs" ({kind: {key: value}}): config a preset pins, e.g. a smaller width its weights used;
-    a base conf applies only while its stage keeps the base's component, and `confs` overrides it. With a registry,
+    A base may carry "confs" ({kind: {key: value}}): config a preset pins, e.g. a smaller width its weights used,
+    and a "variant" name for them; a base conf applies only while its stage keeps the base's component, and `confs`
+    overrides it. With a registry,
     stages taken from the base whose outputs no later stage consumes are dropped (`--matcher oracle` over the
     default pipeline needs no encoders); stages the user named are always kept.
     """
@@ -66,12 +67,15 @@ def expand(
     seen, out = set(), []
     for base in bases:
         base = dict(base)
-        base_confs = base.pop("confs", {})
+        base_confs, variant = base.pop("confs", {}), base.pop("variant", "")
         for values in itertools.product(*(choices[k] for k in kinds)):
             names = {**base, **dict(zip(kinds, values, strict=True))}
             if registry is not None:
                 names = prune_unconsumed(registry, names, keep=set(kinds))
-            combination = Combination(names, _merge_confs(names, base, base_confs, confs or {}))
+            merged = _merge_confs(names, base, base_confs, confs or {})
+            pinned = any(names.get(k) == base.get(k) != NONE for k in base_confs)
+            shown = {k: dict(v) for k, v in (confs or {}).items() if names.get(k, NONE) != NONE}
+            combination = Combination(names, merged, variant if pinned else "", shown)
             if combination.key() not in seen:
                 seen.add(combination.key())
                 out.append(combination)

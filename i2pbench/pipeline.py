@@ -40,10 +40,16 @@ REQUIRED_STAGES = ("extractor2d", "extractor3d", "matcher", "solver")
 
 @dataclass(frozen=True)
 class Combination:
-    """Which component runs at each stage (or "none"), with config overrides."""
+    """Which component runs at each stage (or "none"), with config overrides.
+
+    `variant` names a set of configs a preset pins (e.g. "cpu" for EdgeRegNet's CPU-trained size) so labels stay
+    short; `shown` are the overrides a label spells out (None: all of `confs`). Neither enters the cache key.
+    """
 
     names: Mapping[str, str]
     confs: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    variant: str = field(default="", compare=False)
+    shown: Mapping[str, Mapping[str, Any]] | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         unknown = set(self.names) - set(STAGE_ORDER)
@@ -56,6 +62,14 @@ class Combination:
     @property
     def label(self) -> str:
         return " > ".join(self.name(k) for k in STAGE_ORDER if self.name(k) != NONE)
+
+    @property
+    def display(self) -> str:
+        """The label with the variant and the spelled-out overrides, so rows differing only in config stay apart."""
+        shown = self.confs if self.shown is None else self.shown
+        confs = [f"{kind}.{k}={v}" for kind, conf in sorted(shown.items()) for k, v in conf.items()]
+        variant = f" ({self.variant})" if self.variant else ""
+        return self.label + variant + (f" [{', '.join(confs)}]" if confs else "")
 
     def describe(self) -> dict[str, Any]:
         return {k: {"name": self.name(k), "conf": dict(self.confs.get(k, {}))} for k in STAGE_ORDER}

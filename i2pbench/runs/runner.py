@@ -45,9 +45,8 @@ class Job:
 
     @property
     def label(self) -> str:
-        """The combination's stages, plus its config overrides, so rows that differ only in config stay apart."""
-        confs = [f"{kind}.{k}={v}" for kind, conf in sorted(self.combination.confs.items()) for k, v in conf.items()]
-        return self.combination.label + (f" [{', '.join(confs)}]" if confs else "")
+        """The combination's stages, variant and config overrides, so rows that differ only in config stay apart."""
+        return self.combination.display
 
     def stages(self) -> dict[str, dict[str, Any]]:
         """Each stage's name and full config (defaults merged): a changed default changes the cache key."""

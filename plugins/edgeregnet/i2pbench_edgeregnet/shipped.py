@@ -17,19 +17,20 @@ EDGES = {"extractor2d": "lsd", "extractor3d": "depth+reflectance"}
 SOLVER = {"solver": "epnp-ransac"}
 
 
-def combination(confs: dict[str, dict[str, Any]], keypoints: int, **stages: str) -> dict[str, Any]:
+def combination(confs: dict[str, dict[str, Any]], keypoints: int, variant: str, **stages: str) -> dict[str, Any]:
     """A preset row: EdgeRegNet's stages (overridable), the stage configs, and the extractors' keypoint cap."""
     names = {**EDGES, **COMPONENTS, **SOLVER, **stages}
-    caps = {kind: {"max_keypoints": keypoints} for kind in EDGES}
-    return {**names, "confs": {**confs, **caps}}
+    # a cap equal to the extractors' own default is not pinned, so classic rows built over this one stay plain
+    caps = {kind: {"max_keypoints": keypoints} for kind in EDGES if keypoints != FULL_KEYPOINTS}
+    return {**names, "confs": {**confs, **caps}, "variant": variant}
 
 
 def small(**stages: str) -> dict[str, Any]:
-    return combination(SMALL, SMALL_KEYPOINTS, **stages)
+    return combination(SMALL, SMALL_KEYPOINTS, "cpu-size", **stages)
 
 
 def full(**stages: str) -> dict[str, Any]:
-    return combination(FULL, FULL_KEYPOINTS, **stages)
+    return combination(FULL, FULL_KEYPOINTS, "", **stages)
 
 
 def shipped_weights() -> list[Path]:
