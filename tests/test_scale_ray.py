@@ -4,6 +4,7 @@ for learned stages on a cluster that has them."""
 
 import os
 import sys
+import time
 from pathlib import Path
 
 import pandas as pd
@@ -31,7 +32,7 @@ RESULTS = ["combination", "frame_id", "status", "rte_m", "rre_deg", "n_kp2d", "n
 def local_ray():
     """One local Ray instance for the module: starting one costs seconds."""
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # workers cannot import this test module
-    ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING")
+    ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="WARNING")
     yield
     ray.shutdown()
 
@@ -42,16 +43,21 @@ def kitti(shared_data):
 
 
 class CrashOnce(KittiOdometry):
-    """KITTI whose loader kills its process the first time it reaches `crash_at`, logging every load with its pid."""
+    """KITTI whose loader kills its process the first time it reaches `crash_at`, once the driver has stored a frame
+    (a result still in flight when a worker dies is recomputed, rightly: waiting makes the test deterministic);
+    every load is logged with its pid."""
 
-    def arm(self, crash_at: str, marker: Path, log: Path) -> "CrashOnce":
-        self.crash_at, self.marker, self.log = crash_at, str(marker), str(log)
+    def arm(self, crash_at: str, marker: Path, log: Path, stored: Path) -> "CrashOnce":
+        self.crash_at, self.marker, self.log, self.stored = crash_at, str(marker), str(log), str(stored)
         return self
 
     def load(self, frame_id):
         with open(self.log, "a") as log:
             log.write(f"{os.getpid()} {frame_id}\n")
         if frame_id == self.crash_at and not os.path.exists(self.marker):
+            deadline = time.monotonic() + 60
+            while not list(Path(self.stored).glob("*.parquet")) and time.monotonic() < deadline:
+                time.sleep(0.01)
             Path(self.marker).touch()
             os._exit(1)  # a worker lost mid-task, as to a node failure or the OOM killer
         return super().load(frame_id)
@@ -76,8 +82,8 @@ def test_a_ray_grid_gives_the_serial_leaderboard_written_by_the_driver(local_ray
 
 def test_a_worker_lost_mid_chunk_recomputes_only_its_unfinished_frames(local_ray, kitti, tmp_path, capfd):
     frames = kitti.frame_ids()[:3]
-    flaky = CrashOnce("all", kitti.conf).arm(frames[1], tmp_path / "crashed", tmp_path / "loads.log")
     store, combos = ResultsStore(tmp_path / "ray"), [Combination({**BASE, "extractor2d": "canny"})]
+    flaky = CrashOnce("all", kitti.conf).arm(frames[1], tmp_path / "crashed", tmp_path / "loads.log", store.frames_dir)
     executor = RayExecutor(workers=1)  # one actor, one chunk of all three frames
     records = executors.run_grid(default_registry(), combos, flaky, Protocol(), store, executor, frame_ids=frames)
     pd.testing.assert_frame_equal(records[RESULTS], _serial(kitti, tmp_path, combos, frames)[RESULTS])
@@ -104,6 +110,12 @@ class _FakeRay:
     def put(self, value):
         return value
 
+    def remote(self, *args):
+        return self  # stands in for the actor class, and for each actor it creates
+
+    def options(self, **options):
+        return self
+
 
 @pytest.mark.parametrize("gpus", [2, 0])
 def test_learned_stages_ask_for_a_gpu_only_where_the_cluster_has_one(monkeypatch, gpus):
@@ -117,3 +129,6 @@ def test_learned_stages_ask_for_a_gpu_only_where_the_cluster_has_one(monkeypatch
     assert learned_options.get("num_gpus") == (1.0 if gpus else None) and learned_options["num_cpus"] == 1
     assert "num_gpus" not in classic_options and classic_options["num_cpus"] == 1
     assert executor.workers == 8  # one single-threaded actor per cluster CPU
+    if gpus:  # GPU actors hold a CPU each too: CPU actors get the rest, so neither kind waits on the other forever
+        assert len(executor._actors(ray_executor.GPU, tasks=5)) == 2
+        assert len(executor._actors(ray_executor.CPU, tasks=50)) == 6

@@ -96,7 +96,9 @@ class RayExecutor:
         """Join (or start) Ray and put the work, weights included, into the object store once."""
         if not self.ray.is_initialized():
             cpus = self.requested * self.threads if self.address is None and self.requested else None
-            self.ray.init(address=self.address, num_cpus=cpus, include_dashboard=False, logging_level=logging.WARNING)
+            self.ray.init(
+                address=self.address or "local", num_cpus=cpus, include_dashboard=False, logging_level=logging.WARNING
+            )
             self._owns_ray = True
         gpus = self.ray.cluster_resources().get("GPU", 0) > 0
         self._jobs_gpu = [gpus and bool(job.pipeline.learned_modules()) for job in work.jobs]
@@ -105,7 +107,7 @@ class RayExecutor:
     def run(self, tasks: Sequence[Task], deliver: Deliver) -> None:
         """Keep every actor busy with a chunk; deliver each frame as it streams back; resubmit what a lost actor
         never sent."""
-        queues = {CPU: deque[Attempt](), GPU: deque[Attempt]()}
+        queues = {GPU: deque[Attempt](), CPU: deque[Attempt]()}  # GPU actors first: CPU ones get the CPUs left
         for task in tasks:
             queues[self.shape(task.job)].append(Attempt(None, self.shape(task.job), task))
         idle = {shape: deque(self._actors(shape, len(queue))) for shape, queue in queues.items() if queue}
@@ -148,7 +150,7 @@ class RayExecutor:
             result: Result = self.ray.get(next(generator))
         except StopIteration:
             del inflight[generator]
-            idle[attempt.shape].append(attempt.actor)
+            self._free(attempt, idle, queues)
             return
         except (self.ray.exceptions.RayActorError, self.ray.exceptions.ObjectLostError) as exc:
             del inflight[generator]
@@ -157,6 +159,16 @@ class RayExecutor:
             return
         deliver([result])
         attempt.task = _without(attempt.task, result.frame_id)
+
+    def _free(self, attempt: Attempt, idle: dict, queues: dict) -> None:
+        """Back to the idle pool; but an actor with no work of its shape left while the other shape's work waits is
+        killed, to hand its CPUs to actors of that shape that may be waiting for them."""
+        others_wait = any(queue for shape, queue in queues.items() if shape != attempt.shape)
+        if queues[attempt.shape] or not others_wait:
+            idle[attempt.shape].append(attempt.actor)
+            return
+        self.ray.kill(attempt.actor)
+        self.actors[attempt.shape].remove(attempt.actor)
 
     def _retry(self, attempt: Attempt, exc: Exception) -> Attempt:
         if attempt.retries >= self.max_retries:
@@ -170,7 +182,7 @@ class RayExecutor:
 
     def _actors(self, shape: str, tasks: int) -> list[Any]:
         """This shape's actors, created on first need: as many as asked, the cluster holds, and tasks can use."""
-        if shape not in self.actors:
+        if not self.actors.get(shape):
             n = max(1, min(self.requested or self._capacity(shape), self._capacity(shape) or 1, tasks))
             actor_class = self.ray.remote(RayWorker).options(**self.actor_options(shape))
             self.actors[shape] = [actor_class.remote(self.threads, shape == GPU) for _ in range(n)]
@@ -180,7 +192,8 @@ class RayExecutor:
         resources = self.ray.cluster_resources() if self.ray.is_initialized() else {}
         if shape == GPU:
             return int(resources.get("GPU", 0) // self.gpus_per_worker)
-        return int(resources.get("CPU", 0) // self.threads)
+        held_by_gpu_actors = len(self.actors.get(GPU, [])) * self.threads
+        return int((resources.get("CPU", 0) - held_by_gpu_actors) // self.threads)
 
 
 def _without(task: Task, frame_id: str) -> Task:
