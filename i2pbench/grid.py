@@ -72,8 +72,8 @@ def expand(
             names = {**base, **dict(zip(kinds, values, strict=True))}
             if registry is not None:
                 names = prune_unconsumed(registry, names, keep=set(kinds))
-            merged = _merge_confs(names, base, base_confs, confs or {})
-            pinned = any(names.get(k) == base.get(k) != NONE for k in base_confs)
+            merged = _merge_confs(names, base, base_confs, confs or {}, registry)
+            pinned = any(merged.get(k, {}).items() >= dict(v).items() for k, v in base_confs.items() if v)
             shown = {k: dict(v) for k, v in (confs or {}).items() if names.get(k, NONE) != NONE}
             combination = Combination(names, merged, variant if pinned else "", shown)
             if combination.key() not in seen:
@@ -102,13 +102,19 @@ def _merge_confs(
     base: Mapping[str, str],
     base_confs: Mapping[str, Mapping[str, Any]],
     overrides: Mapping[str, Mapping[str, Any]],
+    registry: Registry | None = None,
 ) -> dict[str, dict[str, Any]]:
+    """Pinned confs apply to stages that kept the base's component; a non-learned stage's pins (e.g. an extractor's
+    keypoint cap) serve the base's learned stages, so they apply only while one of those is kept too."""
+    kept = {k for k in base_confs if names.get(k, NONE) == base.get(k) != NONE}
+    if registry is not None:
+        learned = {k for k in kept if registry.component(k, names[k]).learned}
+        kept = kept if learned else set()
     merged = {}
     for kind in STAGE_ORDER:
         if names.get(kind, NONE) == NONE:
             continue
-        pinned = base_confs.get(kind, {}) if names[kind] == base.get(kind) else {}
-        conf = {**pinned, **overrides.get(kind, {})}
+        conf = {**(base_confs[kind] if kind in kept else {}), **overrides.get(kind, {})}
         if conf:
             merged[kind] = conf
     return merged

@@ -125,3 +125,16 @@ def test_stages_from_the_base_that_nothing_consumes_are_dropped_but_named_ones_k
     assert named.name("encoder2d") == "superpoint-cnn" and named.name("encoder3d") == "none"
     cosine = expand(bases, {"matcher": ["cosine"]}, registry=registry)[0]
     assert cosine.name("exchanger") == "attention" and cosine.name("encoder3d") == "pointnet2"
+
+
+def test_extractor_caps_pinned_for_the_learned_stages_leave_with_them():
+    from i2pbench.grid import base_combinations, expand
+    from i2pbench.plugins import default_registry
+
+    registry = default_registry()
+    bases = base_combinations(registry, None)
+    learned = expand(bases, {"extractor2d": ["canny"]}, registry=registry)[0]
+    assert learned.confs["extractor3d"]["max_keypoints"] == 1024  # still serving the CPU-sized network
+    assert "extractor2d" not in learned.confs  # canny is not the base's lsd: its own defaults
+    classic = expand(bases, {"matcher": ["oracle"]}, registry=registry)[0]
+    assert classic.confs == {} and classic.variant == ""
