@@ -85,7 +85,8 @@ class Executor(typing.Protocol):
     @property
     def workers(self) -> int: ...
 
-    def start(self, work: Work, store: ResultsStore) -> None: ...
+    def start(self, work: Work, store: ResultsStore) -> None:
+        """Start the workers with `work`; `store` is for executors whose workers write results themselves."""
 
     def run(self, tasks: Sequence[Task], deliver: Deliver) -> None: ...
 
