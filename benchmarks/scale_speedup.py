@@ -15,8 +15,10 @@ frames in ../shared/data/kitti_odometry, 108 frames in all, CPU-bound. For each 
 Serial (in-process, one thread) is the baseline. Counts alternate (1, 2, 1, 2, ...) over `--repeat` rounds and the
 medians are printed, so the load of a shared machine drifting during the run biases neither side. `--edgeregnet`
 sizes the small EdgeRegNet (the default preset) instead: fewer frames/s, so one round over the six frames.
+`--sleep-ms MS` replaces the 2D extractor by one that waits MS ms (6 copies of that combination): the cores are then
+not the limit, so the speed-up shows how well the executor overlaps its workers even on a busy machine.
 
-    .venv/bin/python benchmarks/scale_speedup.py [--workers 1 2] [--repeat 3] [--ray] [--edgeregnet]
+    .venv/bin/python benchmarks/scale_speedup.py [--workers 1 2] [--repeat 3] [--ray] [--edgeregnet | --sleep-ms 50]
 """
 
 from __future__ import annotations
@@ -24,14 +26,19 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import sys
 import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
+from i2pbench.api import Extractor2D, Keypoints2D, hookimpl
 from i2pbench.data.kitti import KittiOdometry
 from i2pbench.grid import expand
-from i2pbench.plugins import default_registry
+from i2pbench.pipeline import Combination
+from i2pbench.plugins import Registry, build_registry, default_registry
 from i2pbench.protocol import Protocol
 from i2pbench.runs.executors import Collector, Executor, LocalExecutor, Task, Work, plan
 from i2pbench.runs.runner import prepare, run_job
@@ -45,13 +52,44 @@ CLASSIC_GRID = {
     "solver": ["epnp-ransac", "poselib"],
 }
 EMPTY_TASKS = 200
+SLEEP_COPIES = 6
 
 
-def combinations(edgeregnet: bool):
+class Sleep(Extractor2D):
+    """waits instead of computing, then gives four fixed keypoints."""
+
+    name = "sleep"
+    default_conf = {"ms": 50, "copy": 0}  # copy: tells apart otherwise identical combinations
+
+    def __call__(self, frame):
+        time.sleep(self.conf["ms"] / 1e3)
+        return Keypoints2D(np.array([[100, 100], [200, 100], [100, 200], [200, 200]], np.float32))
+
+
+class SleepPlugin:
+    @hookimpl
+    def register_extractors_2d(self, register) -> None:
+        register(Sleep)
+
+
+def workload(args: argparse.Namespace) -> tuple[Registry, list[Combination]]:
+    if args.sleep_ms:
+        if args.ray:
+            _ship_this_script_to_ray()
+        base = {"extractor2d": "sleep", "extractor3d": "random", "matcher": "oracle", "solver": "epnp-ransac"}
+        confs = [{"extractor2d": {"ms": args.sleep_ms, "copy": i}} for i in range(SLEEP_COPIES)]
+        return build_registry((SleepPlugin(),)), [Combination(base, conf) for conf in confs]
     registry = default_registry()
-    if edgeregnet:
-        return expand(registry.preset("default").combinations, {})
-    return expand([CLASSIC_BASE], CLASSIC_GRID)
+    if args.edgeregnet:
+        return registry, expand(registry.preset("default").combinations, {})
+    return registry, expand([CLASSIC_BASE], CLASSIC_GRID)
+
+
+def _ship_this_script_to_ray() -> None:
+    """Ray workers cannot import this script: its Sleep stage travels by value."""
+    import ray
+
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
 
 
 def serial(work: Work, frame_ids: list[str], root: Path) -> float:
@@ -126,10 +164,12 @@ def main() -> None:
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--ray", action="store_true", help="also time Ray actors on a local Ray instance")
     p.add_argument("--edgeregnet", action="store_true", help="the small EdgeRegNet (default preset), not the grid")
+    p.add_argument("--sleep-ms", type=float, help="a 2D extractor that waits this long, not the classic grid")
     args = p.parse_args()
     dataset = KittiOdometry("all", {"root": str(KITTI)})
     frame_ids = dataset.frame_ids()
-    work = Work(prepare(default_registry(), combinations(args.edgeregnet)), dataset, Protocol())
+    registry, combos = workload(args)
+    work = Work(prepare(registry, combos), dataset, Protocol())
     frames = len(work.jobs) * len(frame_ids)
     print(f"cpus {os.cpu_count()}, load average before {os.getloadavg()}")
     with tempfile.TemporaryDirectory() as tmp:
