@@ -31,7 +31,7 @@ from ..pipeline import Combination
 from ..plugins import Registry
 from ..protocol import Protocol
 from .environment import fix_threads
-from .runner import Job, Progress, _labels, _warm_up, frame_key, prepare, run_frame
+from .runner import Job, Progress, frame_key, labels, prepare, run_frame, warm_up
 from .store import ResultsStore
 
 DEFAULT_CHUNK = 8  # frames per task: few enough to balance a small grid, enough to amortise a task's overhead
@@ -118,7 +118,7 @@ class Worker:
         w, job = self.work, self.work.jobs[task.job]
         for frame_id, key in zip(task.frame_ids, task.keys, strict=True):
             if task.job not in self.warm and w.warmup:
-                _warm_up(job, w.dataset, w.protocol, frame_id, w.warmup)
+                warm_up(job, w.dataset, w.protocol, frame_id, w.warmup)
             self.warm.add(task.job)
             record = {**run_frame(job, w.dataset, frame_id, w.protocol), "invocation": w.invocation}
             if self.store is not None:
@@ -241,7 +241,7 @@ def run_plan(
 
 def _frame(jobs: Sequence[Job], frame_ids: Sequence[str], work_plan: Plan) -> pd.DataFrame:
     """Records in the serial run's order (job by job, frames in order), labels spelled as the serial run does."""
-    rows = [{**work_plan.records[j, frame_id], **_labels(job)} for j, job in enumerate(jobs) for frame_id in frame_ids]
+    rows = [{**work_plan.records[j, frame_id], **labels(job)} for j, job in enumerate(jobs) for frame_id in frame_ids]
     return pd.DataFrame(rows)
 
 

@@ -110,17 +110,17 @@ def run_job(
         record = None if overwrite else store.get(key)
         if record is None:
             if not warm:
-                _warm_up(job, dataset, protocol, frame_id, warmup)
+                warm_up(job, dataset, protocol, frame_id, warmup)
                 warm = True
             record = {**run_frame(job, dataset, frame_id, protocol), "invocation": invocation}
             store.put(key, record)
-        records.append({**record, **_labels(job)})  # the key holds resolved configs: labels follow this spelling
+        records.append({**record, **labels(job)})  # the key holds resolved configs: labels follow this spelling
         if progress:
             progress(1)
     return records
 
 
-def _warm_up(job: Job, dataset: Dataset, protocol: Protocol, frame_id: str, times: int) -> None:
+def warm_up(job: Job, dataset: Dataset, protocol: Protocol, frame_id: str, times: int) -> None:
     """Untimed runs so one-off costs (lazy imports, allocator growth, JIT) stay out of latency figures."""
     try:
         frame = protocol.apply(dataset.load(frame_id))
@@ -146,7 +146,7 @@ def run_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> 
     return _record(job, dataset, frame_id, protocol, outcome, frame.T_gt, loaded - start, time.perf_counter() - start)
 
 
-def _labels(job: Job) -> dict[str, str]:
+def labels(job: Job) -> dict[str, str]:
     return {"combination": job.label, "combination_key": job.combination.key()}
 
 
@@ -166,7 +166,7 @@ def _record(
         "dataset": dataset.name,
         "split": dataset.split,
         "frame_id": frame_id,
-        **_labels(job),
+        **labels(job),
         **{kind: job.combination.name(kind) for kind in STAGE_ORDER},
         "weights": job.weights,
         "weights_trained_on": job.pipeline.weights_meta.get("trained_on", ""),
