@@ -91,6 +91,7 @@ def save_checkpoint(path: str | Path, pipeline: Pipeline, **meta: Any) -> Path:
     os.close(fd)
     try:
         torch.save(payload, tmp)
+        os.chmod(tmp, 0o644)  # mkstemp makes it private; a checkpoint is data to share
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
