@@ -12,6 +12,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import torch
 
+from .errors import PluginError
 from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
 
 # The values that can flow between stages; a frame always provides "image" and "points".
@@ -21,7 +22,7 @@ FEATURES2D, FEATURES3D = "features2d", "features3d"
 MATCHES = "matches"
 
 
-class ConfigError(ValueError):
+class ConfigError(PluginError, ValueError):
     """A component was given a configuration it does not understand."""
 
 

@@ -20,6 +20,7 @@ SOLVER = {"solver": "epnp-ransac"}
 def combination(confs: dict[str, dict[str, Any]], keypoints: int, variant: str, **stages: str) -> dict[str, Any]:
     """A preset row: EdgeRegNet's stages (overridable), the stage configs, and the extractors' keypoint cap."""
     names = {**EDGES, **COMPONENTS, **SOLVER, **stages}
+    confs = {kind: conf for kind, conf in confs.items() if names[kind] == COMPONENTS[kind]}  # a swapped stage: own
     # a cap equal to the extractors' own default is not pinned, so classic rows built over this one stay plain
     caps = {kind: {"max_keypoints": keypoints} for kind in EDGES if keypoints != FULL_KEYPOINTS}
     return {**names, "confs": {**confs, **caps}, "variant": variant}
