@@ -145,7 +145,7 @@ def apply_checkpoint(pipeline: Pipeline, checkpoint: Checkpoint) -> None:
         except (KeyError, RuntimeError) as exc:
             raise WeightsError(f"checkpoint {checkpoint.path}: cannot load {module.label}: {exc}") from exc
     pipeline.weights_identity = checkpoint.identity
-    pipeline.weights_meta = {"trained_on": checkpoint.trained_on, **checkpoint.meta}
+    pipeline.weights_meta = {**checkpoint.meta, "trained_on": checkpoint.trained_on}  # the summary string wins
 
 
 def select_checkpoint(pipeline: Pipeline, choice: str, shipped: list[str]) -> Checkpoint | None:

@@ -80,6 +80,7 @@ def test_rows_say_untrained_or_which_checkpoint(registry, tmp_path):
         registry, [Combination(LEARNED)], dataset, Protocol(), ResultsStore(tmp_path / "b"), weights=str(path)
     )
     assert set(trained["weights"]) == {load_checkpoint(path).identity}
+    assert set(trained["weights_trained_on"]) == {"toy/?, 3 steps"}  # a summary string, never the raw record
     classic = run_grid(registry, [Combination(toy_plugin_base())], dataset, Protocol(), ResultsStore(tmp_path / "c"))
     assert set(classic["weights"]) == {"none"}
 
