@@ -85,17 +85,21 @@ class Trainer:
         self._keypoints: dict[str, tuple] = {}
 
     def resume(self) -> bool:
-        """Continue from the last checkpoint and resume file, if both exist."""
-        state_path = _resume_path(self.out)
-        if not (self.out.is_file() and state_path.is_file()):
+        """Continue from the last checkpoint: exactly with its resume file (optimiser state), or from its weights and
+        step with a fresh optimiser when only the checkpoint travelled (resume files are not committed)."""
+        if not self.out.is_file():
             return False
         checkpoint = load_checkpoint(self.out)
         for kind, module in self.pipeline.learned_modules().items():
             module.load_state_dict(checkpoint.state[kind])
-        state = torch.load(state_path, map_location=self.device, weights_only=True)
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.step, self.seconds = int(state["step"]), float(state["seconds"])
+        self.step = int(checkpoint.meta.get("steps", 0))
+        self.seconds = float(checkpoint.meta.get("train_seconds", 0.0))
         self.validation = checkpoint.meta.get("validation", {})
+        state_path = _resume_path(self.out)
+        if state_path.is_file():
+            state = torch.load(state_path, map_location=self.device, weights_only=True)
+            if int(state["step"]) == self.step:
+                self.optimizer.load_state_dict(state["optimizer"])
         return True
 
     def sample(self, step: int) -> Frame:

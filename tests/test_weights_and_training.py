@@ -130,3 +130,13 @@ def test_training_frames_and_transforms_depend_only_on_seed_and_step(registry, t
     a, b = _trainer(registry, tmp_path / "a.pt", 1), _trainer(registry, tmp_path / "b.pt", 1)
     assert np.array_equal(a.sample(5).T_gt, b.sample(5).T_gt)
     assert not np.array_equal(a.sample(5).T_gt, a.sample(6).T_gt)
+
+
+def test_training_continues_from_the_checkpoint_alone_when_the_resume_file_is_gone(registry, tmp_path):
+    first = _trainer(registry, tmp_path / "c.pt", steps=3)
+    first.run({})
+    (tmp_path / "c.pt.resume").unlink()
+    again = _trainer(registry, tmp_path / "c.pt", steps=5)
+    assert again.resume() and again.step == 3
+    weights = load_checkpoint(tmp_path / "c.pt").state["encoder2d"]
+    assert all(torch.equal(p, weights[k]) for k, p in again.pipeline.stages["encoder2d"].state_dict().items())
