@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import logging
 import sys
+import time
 from collections import deque
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from types import ModuleType
 from typing import Any
 
@@ -58,6 +59,10 @@ class RayWorker:
         yield from self.worker.run(task)
 
 
+MAX_WAITS = 120  # resubmissions to a restarting actor before it counts as lost
+RESTART_WAIT_S = 0.25
+
+
 @dataclass
 class Attempt:
     """A chunk in flight on one actor: what has not come back yet, and how many times it was resubmitted."""
@@ -66,6 +71,7 @@ class Attempt:
     shape: str
     task: Task
     retries: int = 0
+    waits: int = 0  # resubmissions since the loss to an actor Ray was still restarting (not new losses)
 
 
 class RayExecutor:
@@ -159,6 +165,7 @@ class RayExecutor:
             return
         deliver([result])
         attempt.task = _without(attempt.task, result.frame_id)
+        attempt.waits = 0  # the actor answers again: a later failure is a new loss
 
     def _free(self, attempt: Attempt, idle: dict, queues: dict) -> None:
         """Back to the idle pool; but an actor with no work of its shape left while the other shape's work waits is
@@ -171,6 +178,11 @@ class RayExecutor:
         self.actors[attempt.shape].remove(attempt.actor)
 
     def _retry(self, attempt: Attempt, exc: Exception) -> Attempt:
+        restarting = getattr(self.ray.exceptions, "ActorUnavailableError", None)
+        is_restarting = restarting is not None and isinstance(exc, restarting)
+        if is_restarting and 0 < attempt.waits < MAX_WAITS:
+            time.sleep(RESTART_WAIT_S)  # still the same loss: Ray is restarting the actor, give it time
+            return replace(attempt, actor=None, waits=attempt.waits + 1)
         if attempt.retries >= self.max_retries:
             raise I2PBenchError(
                 f"a Ray worker was lost {attempt.retries + 1} times on frames {list(attempt.task.frame_ids)}; "
@@ -178,7 +190,7 @@ class RayExecutor:
             ) from exc
         lost = f"i2pbench: a Ray worker was lost ({type(exc).__name__}); resubmitting its unfinished frame(s)"
         print(f"{lost}: {list(attempt.task.frame_ids)}", file=sys.stderr)
-        return Attempt(None, attempt.shape, attempt.task, attempt.retries + 1)
+        return replace(attempt, actor=None, retries=attempt.retries + 1, waits=int(is_restarting))
 
     def _actors(self, shape: str, tasks: int) -> list[Any]:
         """This shape's actors, created on first need: as many as asked, the cluster holds, and tasks can use."""
