@@ -58,8 +58,18 @@ def rows_for_frame(frame, outliers: list[float], repeat: int) -> list[dict]:
             solver = make("solver", name)
             estimate, ms = median_ms(lambda s=solver, m=matches: s(frame, kp2d, kp3d, m), repeat)
             err = pose_errors(estimate.T, frame.T_gt)
-            rows.append({"frame_id": frame.frame_id, "outliers": share, "solver": name, "matches": len(matches),
-                         "ms": ms, "rre_deg": err.rre_deg, "rte_m": err.rte_m, "ok": err.rre_deg < 5 and err.rte_m < 2})
+            rows.append(
+                {
+                    "frame_id": frame.frame_id,
+                    "outliers": share,
+                    "solver": name,
+                    "matches": len(matches),
+                    "ms": ms,
+                    "rre_deg": err.rre_deg,
+                    "rte_m": err.rte_m,
+                    "ok": err.rre_deg < 5 and err.rte_m < 2,
+                }
+            )
     return rows
 
 
@@ -75,7 +85,8 @@ def main() -> None:
     pd.set_option("display.width", 160)
     print(rows.round(4).to_string(index=False))
     summary = rows.groupby(["outliers", "solver"]).agg(
-        ms=("ms", "median"), rre_deg=("rre_deg", "median"), rte_m=("rte_m", "median"), success=("ok", "mean"))
+        ms=("ms", "median"), rre_deg=("rre_deg", "median"), rte_m=("rte_m", "median"), success=("ok", "mean")
+    )
     print("\nmedian over frames\n" + summary.round(4).to_string())
     print("\nposelib / epnp-ransac (latency over all frames; errors over frames both solve)")
     print(ratios(rows).to_string())
@@ -89,9 +100,13 @@ def ratios(rows: pd.DataFrame) -> pd.DataFrame:
     for share, group in wide.groupby(level="outliers"):
         solved = group[both.loc[group.index]]
         ratio = {m: (solved[m]["poselib"] / solved[m]["epnp-ransac"]).median() for m in ("rre_deg", "rte_m")}
-        out[share] = {"ms": (group["ms"]["poselib"] / group["ms"]["epnp-ransac"]).median(), **ratio,
-                      "frames_both_ok": int(len(solved))}
+        out[share] = {
+            "ms": (group["ms"]["poselib"] / group["ms"]["epnp-ransac"]).median(),
+            **ratio,
+            "frames_both_ok": int(len(solved)),
+        }
     return pd.DataFrame(out).T.round(3)
+
 
 if __name__ == "__main__":
     main()

@@ -193,8 +193,7 @@ def format_report(report: Report) -> str:
     regressed = len({f.row for f in report.findings}) - missing
     verdict = "FAIL" if report.findings else "OK"
     lines.append(
-        f"{verdict}: {report.compared} rows compared, {regressed} regressed, {missing} missing, "
-        f"{len(report.added)} new"
+        f"{verdict}: {report.compared} rows compared, {regressed} regressed, {missing} missing, {len(report.added)} new"
     )
     return "\n".join(lines)
 

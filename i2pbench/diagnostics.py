@@ -81,8 +81,12 @@ def edge_diagnostics_grid(
         out3d = [timed(e, frame) for e in extractors3d]
         for e2, (kp2d, ms2d) in zip(extractors2d, out2d, strict=True):
             for e3, (kp3d, ms3d) in zip(extractors3d, out3d, strict=True):
-                head = {"dataset": frame.dataset, "frame_id": frame.frame_id, "extractor2d": e2.name,
-                        "extractor3d": e3.name}
+                head = {
+                    "dataset": frame.dataset,
+                    "frame_id": frame.frame_id,
+                    "extractor2d": e2.name,
+                    "extractor3d": e3.name,
+                }
                 rows.append({**head, **pair_row(frame, kp2d, kp3d, radius_px), "time2d_ms": ms2d, "time3d_ms": ms3d})
     return pd.DataFrame(rows)
 

@@ -90,8 +90,19 @@ def latency_columns(board: pd.DataFrame) -> list[str]:
 
 
 DISPLAY = [
-    "dataset", "split", "combination", "weights", "weights_trained_on", "frames", "failures", ACC, RTE, RRE,
-    MODEL_SIZE, LATENCY_MEDIAN, LATENCY_P90,
+    "dataset",
+    "split",
+    "combination",
+    "weights",
+    "weights_trained_on",
+    "frames",
+    "failures",
+    ACC,
+    RTE,
+    RRE,
+    MODEL_SIZE,
+    LATENCY_MEDIAN,
+    LATENCY_P90,
 ]
 
 

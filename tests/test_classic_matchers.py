@@ -23,8 +23,16 @@ def scene(T_gt: np.ndarray | None = None) -> tuple[Frame, Keypoints2D, Keypoints
     """
     xyz = np.array([[0, 0, 10], [1, 0, 10], [0, 1, 10], [0, 0, -10]], np.float32)
     points = np.concatenate([xyz, np.zeros((4, 1), np.float32)], axis=1)
-    frame = Frame("toy", "f", np.zeros((375, 1242, 3), np.uint8), points, np.zeros(4, np.int16),
-                  np.linalg.norm(xyz, axis=1), K, np.eye(4) if T_gt is None else T_gt)
+    frame = Frame(
+        "toy",
+        "f",
+        np.zeros((375, 1242, 3), np.uint8),
+        points,
+        np.zeros(4, np.int16),
+        np.linalg.norm(xyz, axis=1),
+        K,
+        np.eye(4) if T_gt is None else T_gt,
+    )
     kp2d = Keypoints2D(np.array([[601, 180], [670, 184], [900, 300]], np.float32))
     return frame, kp2d, Keypoints3D.from_index(frame, np.arange(4))
 

@@ -63,8 +63,16 @@ def test_edge_diagnostics_hand_scene():
     xyz = np.array([[0, 0, 1], [1, 0.5, 1], [0.5, 0, 1], [0, 0, -1], [5, 0, 1]], np.float32)
     points = np.column_stack([xyz, np.zeros(5, np.float32)])
     K = np.array([[10.0, 0, 10], [0, 10.0, 10], [0, 0, 1]])
-    frame = Frame("toy", "f", np.zeros((20, 40, 3), np.uint8), points, np.zeros(5, np.int16),
-                  np.linalg.norm(xyz, axis=1), K, np.eye(4))
+    frame = Frame(
+        "toy",
+        "f",
+        np.zeros((20, 40, 3), np.uint8),
+        points,
+        np.zeros(5, np.int16),
+        np.linalg.norm(xyz, axis=1),
+        K,
+        np.eye(4),
+    )
     rows = edge_diagnostics([frame], Fixed2D(), All3D())
     row = rows.iloc[0]
     assert (row.n2d, row.n3d, row.n3d_in_fov, row.n3d_matched) == (2, 5, 3, 2)
@@ -77,7 +85,15 @@ def test_edge_diagnostics_hand_scene():
 
 
 def test_edge_diagnostics_needs_ground_truth():
-    frame = Frame("toy", "f", np.zeros((20, 40, 3), np.uint8), np.zeros((1, 4), np.float32), np.zeros(1, np.int16),
-                  np.ones(1, np.float32), np.eye(3), None)
+    frame = Frame(
+        "toy",
+        "f",
+        np.zeros((20, 40, 3), np.uint8),
+        np.zeros((1, 4), np.float32),
+        np.zeros(1, np.int16),
+        np.ones(1, np.float32),
+        np.eye(3),
+        None,
+    )
     with pytest.raises(ValueError, match="T_gt"):
         edge_diagnostics([frame], Fixed2D(), All3D())

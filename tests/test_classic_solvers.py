@@ -26,8 +26,16 @@ def problem(n=200, outliers=0.0, seed=0):
     bad = rng.random(n) < outliers
     uv[bad] = rng.uniform([0, 0], [1242, 375], size=(int(bad.sum()), 2))
     points = np.column_stack([xyz, np.zeros(n)]).astype(np.float32)
-    frame = Frame("toy", "f", np.zeros((375, 1242, 3), np.uint8), points, np.zeros(n, np.int16),
-                  np.linalg.norm(xyz, axis=1).astype(np.float32), K, None)
+    frame = Frame(
+        "toy",
+        "f",
+        np.zeros((375, 1242, 3), np.uint8),
+        points,
+        np.zeros(n, np.int16),
+        np.linalg.norm(xyz, axis=1).astype(np.float32),
+        K,
+        None,
+    )
     kp3d = Keypoints3D(np.arange(n), xyz, np.zeros(n, np.float32))  # float64 xyz: exact data stays exact
     idx = np.arange(n)
     return frame, Keypoints2D(uv.astype(np.float64)), kp3d, Matches(idx, idx, np.ones(n, np.float32)), T, bad

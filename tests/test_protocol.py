@@ -71,7 +71,15 @@ def test_card_records_every_parameter_and_identity_changes_with_them():
 def test_a_scan_with_nan_points_is_refused_naming_its_source():
     points = np.zeros((3, 4), np.float32)
     points[1, 2] = np.nan
-    sensor = SensorFrame("kitti", "00/000002", np.zeros((4, 4, 3), np.uint8), points, np.zeros(3, np.int16),
-                         np.eye(3), np.eye(4), source="/data/00/velodyne/000002.bin")
+    sensor = SensorFrame(
+        "kitti",
+        "00/000002",
+        np.zeros((4, 4, 3), np.uint8),
+        points,
+        np.zeros(3, np.int16),
+        np.eye(3),
+        np.eye(4),
+        source="/data/00/velodyne/000002.bin",
+    )
     with pytest.raises(DataError, match="/data/00/velodyne/000002.bin: the scan contains NaN"):
         Protocol().apply(sensor)

@@ -19,8 +19,14 @@ INF = math.inf
 def records(rte, rre, status=None, combination="a", weights="none") -> pd.DataFrame:
     status = status or ["ok" if np.isfinite(r) else "failed" for r in rte]
     return pd.DataFrame(
-        {"rte_m": rte, "rre_deg": rre, "status": status, "combination": combination, "weights": weights,
-         "frame_id": [f"00/{i:06d}" for i in range(len(rte))]}
+        {
+            "rte_m": rte,
+            "rre_deg": rre,
+            "status": status,
+            "combination": combination,
+            "weights": weights,
+            "frame_id": [f"00/{i:06d}" for i in range(len(rte))],
+        }
     )
 
 
@@ -68,8 +74,15 @@ def test_rows_follow_the_given_order_and_name_trained_weights():
 
 
 def test_table_cells_sort_by_raw_values_and_show_rounded_ones():
-    board = pd.DataFrame({"combination": ["<b>"], "weights": ["none"], "RTE (m) ↓": ["0.03 ± 0.01"],
-                          "rte_mean": [0.0312345], "Acc. (%) ↑": [float("nan")]})
+    board = pd.DataFrame(
+        {
+            "combination": ["<b>"],
+            "weights": ["none"],
+            "RTE (m) ↓": ["0.03 ± 0.01"],
+            "rte_mean": [0.0312345],
+            "Acc. (%) ↑": [float("nan")],
+        }
+    )
     out = html.table(board)
     assert '<td data-sort="0.0312345">0.03 ± 0.01</td>' in out
     assert '<td data-sort="">-</td>' in out  # NaN: shown as "-", sorted after every number

@@ -17,13 +17,22 @@ from i2pbench.runs.store import ResultsStore
 KITTI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_odometry"
 CHROMIUM = next((shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome") if shutil.which(n)), None)
 CHROMIUM_FLAGS = [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync", "--enable-logging=stderr",
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--enable-logging=stderr",
     "--v=0",
 ]
 # Injected into a copy of the page: record any script error into the DOM, then click headers as a reader would.
-TRAP = ('<script>window.addEventListener("error", function (e) { var d = document.documentElement;'
-        ' d.setAttribute("data-js-errors", (d.getAttribute("data-js-errors") || "") + e.message + ";"); });</script>')
+TRAP = (
+    '<script>window.addEventListener("error", function (e) { var d = document.documentElement;'
+    ' d.setAttribute("data-js-errors", (d.getAttribute("data-js-errors") || "") + e.message + ";"); });</script>'
+)
 PROBE = """<script>
 function firstRow() { return document.querySelector("table.sortable tbody tr").cells[0].textContent; }
 var headers = document.querySelectorAll("table.sortable th"), d = document.documentElement;
@@ -38,9 +47,26 @@ def run_dir(tmp_path_factory) -> Path:
     if not KITTI.is_dir():
         pytest.skip(f"{KITTI} is not present")
     tmp = tmp_path_factory.mktemp("report")
-    argv = ["run", "--preset", "classic-oracle", "--extractor", "lsd,canny", "--dataset", "kitti", "--split", "all",
-            "--data-root", str(KITTI), "--frames", "2", "--runs-dir", str(tmp / "runs"), "--out", str(tmp / "lb"),
-            "--quiet"]
+    argv = [
+        "run",
+        "--preset",
+        "classic-oracle",
+        "--extractor",
+        "lsd,canny",
+        "--dataset",
+        "kitti",
+        "--split",
+        "all",
+        "--data-root",
+        str(KITTI),
+        "--frames",
+        "2",
+        "--runs-dir",
+        str(tmp / "runs"),
+        "--out",
+        str(tmp / "lb"),
+        "--quiet",
+    ]
     assert main(argv) == 0
     return tmp / "runs" / "kitti-all"
 
@@ -64,7 +90,7 @@ def test_page_is_self_contained(page):
 def test_page_lists_both_combinations_with_their_frames(page):
     text = page.read_text()
     for name in ("lsd", "canny"):
-        assert f"<td data-sort=\"{name} &gt; depth+reflectance &gt; oracle &gt; epnp-ransac\">" in text
+        assert f'<td data-sort="{name} &gt; depth+reflectance &gt; oracle &gt; epnp-ransac">' in text
     assert text.count("<figcaption>best frame of") == 2 and text.count("<figcaption>worst frame of") == 2
 
 

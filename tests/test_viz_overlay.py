@@ -113,8 +113,22 @@ def kitti_viz(tmp_path_factory):
     if not KITTI.is_dir():
         pytest.skip(f"{KITTI} is not present")
     out = tmp_path_factory.mktemp("viz") / "frame.png"
-    argv = ["viz", "00/000000", "--preset", "classic-oracle", "--dataset", "kitti", "--split", "all",
-            "--data-root", str(KITTI), "--out", str(out), "--edges", "--matches"]
+    argv = [
+        "viz",
+        "00/000000",
+        "--preset",
+        "classic-oracle",
+        "--dataset",
+        "kitti",
+        "--split",
+        "all",
+        "--data-root",
+        str(KITTI),
+        "--out",
+        str(out),
+        "--edges",
+        "--matches",
+    ]
     assert main(argv) == 0
     return cv2.imread(str(out))[:, :, ::-1], kitti_frame(str(KITTI))
 
@@ -136,7 +150,19 @@ def test_viz_ground_truth_panel_is_the_projection_under_t_gt(kitti_viz):
 def test_viz_refuses_more_than_one_combination(capsys):
     if not KITTI.is_dir():
         pytest.skip(f"{KITTI} is not present")
-    argv = ["viz", "0", "--preset", "classic-oracle", "--extractor", "lsd,canny", "--dataset", "kitti", "--split",
-            "all", "--data-root", str(KITTI)]
+    argv = [
+        "viz",
+        "0",
+        "--preset",
+        "classic-oracle",
+        "--extractor",
+        "lsd,canny",
+        "--dataset",
+        "kitti",
+        "--split",
+        "all",
+        "--data-root",
+        str(KITTI),
+    ]
     assert main(argv) == 2
     assert "viz draws one combination" in capsys.readouterr().err

@@ -11,8 +11,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="write a self-contained HTML report of a runs directory (e.g. runs/kitti-all)")
     p.add_argument("run", help="a runs directory: runs/<dataset>-<split>")
     p.add_argument("--out", help="HTML path (default RUN/report.html)")
-    p.add_argument("--overlays", type=int, default=4,
-                   help="best and worst frame overlays for this many combinations, top of the leaderboard (0: none)")
+    p.add_argument(
+        "--overlays",
+        type=int,
+        default=4,
+        help="best and worst frame overlays for this many combinations, top of the leaderboard (0: none)",
+    )
     p.add_argument("--data-root", help="where the dataset lies now, if not where the run recorded it")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 

@@ -59,7 +59,10 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--split", default="test")
     p.add_argument("--data-root", help="dataset root directory (else I2PBENCH_<NAME>_ROOT)")
     p.add_argument(
-        "--data-conf", action="append", default=[], metavar="KEY=VALUE",
+        "--data-conf",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
         help="dataset config (YAML values; dotted keys nest, e.g. frames.test=3)",
     )
     p.add_argument("--frames", type=int, default=None, help="use only the first N frames of the split")

@@ -32,8 +32,11 @@ class Example:
 def pick(run: RunDir, board: pd.DataFrame, n_rows: int) -> list[tuple[str, str, pd.Series]]:
     """[(kind, row label, record)]: best and worst frame of each of the first `n_rows` leaderboard rows."""
     order = list(zip(board["combination"], board["weights"], strict=True))[:n_rows]
-    return [(kind, label, record) for label, group in rows(run.records, order)
-            for kind, record in best_and_worst(group, run.protocol)]
+    return [
+        (kind, label, record)
+        for label, group in rows(run.records, order)
+        for kind, record in best_and_worst(group, run.protocol)
+    ]
 
 
 def render_examples(

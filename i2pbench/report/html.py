@@ -21,8 +21,17 @@ from .examples import Example, render_examples
 from .rundir import RunDir, load_run
 
 COLUMNS = [
-    "combination", "weights", "frames", "failures", lb.ACC, lb.RTE, lb.RRE, "geodesic median (°) ↓", lb.MODEL_SIZE,
-    lb.LATENCY_MEDIAN, lb.LATENCY_P90,
+    "combination",
+    "weights",
+    "frames",
+    "failures",
+    lb.ACC,
+    lb.RTE,
+    lb.RRE,
+    "geodesic median (°) ↓",
+    lb.MODEL_SIZE,
+    lb.LATENCY_MEDIAN,
+    lb.LATENCY_P90,
 ]
 SORT_BY = {lb.RTE: lb.RTE_MEAN, lb.RRE: lb.RRE_MEAN}  # "mean ± std" text columns sort by their mean
 
@@ -90,12 +99,21 @@ def render(run: RunDir, board: pd.DataFrame, examples: list[Example], notes: lis
     sections = [
         _header(run, notes),
         _section("Leaderboard", _explain_board(run), table(board)),
-        _section("Cumulative errors", "Share of all frames (failures included) under each error.",
-                 _png(curves.cumulative_errors(groups, run.protocol), "cumulative RTE and RRE")),
-        _section("Acc. against its thresholds", "Dashed: the protocol's thresholds, where each curve meets Acc.",
-                 _png(curves.accuracy_curves(groups, run.protocol), "Acc. against the RRE and RTE thresholds")),
-        _section("Latency", "Median per stage, over the frames whose pipeline ran to the end.",
-                 _png(curves.latency_bars(board), "per-stage latency")),
+        _section(
+            "Cumulative errors",
+            "Share of all frames (failures included) under each error.",
+            _png(curves.cumulative_errors(groups, run.protocol), "cumulative RTE and RRE"),
+        ),
+        _section(
+            "Acc. against its thresholds",
+            "Dashed: the protocol's thresholds, where each curve meets Acc.",
+            _png(curves.accuracy_curves(groups, run.protocol), "Acc. against the RRE and RTE thresholds"),
+        ),
+        _section(
+            "Latency",
+            "Median per stage, over the frames whose pipeline ran to the end.",
+            _png(curves.latency_bars(board), "per-stage latency"),
+        ),
         _section("Best and worst frames", _explain_examples(), "".join(_figure(e) for e in examples)),
     ]
     title = f"i2pbench report: {_dataset_name(run)}"
@@ -165,9 +183,7 @@ def _header(run: RunDir, notes: list[str]) -> str:
         f"{len(run.records)} frame results, {len(run.meta)} invocation(s), code {', '.join(commits) or 'unknown'}",
         f"generated {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC",
     ]
-    items = "".join(f"<li>{escape(f)}</li>" for f in facts) + "".join(
-        f"<li class=note>{escape(n)}</li>" for n in notes
-    )
+    items = "".join(f"<li>{escape(f)}</li>" for f in facts) + "".join(f"<li class=note>{escape(n)}</li>" for n in notes)
     return f"<ul class=meta>{items}</ul>\n"
 
 

@@ -33,7 +33,7 @@ def points_panel(frame: Frame, T: np.ndarray | None, radius: int = 1) -> np.ndar
 
 
 def errors_text(T: np.ndarray | None, T_gt: np.ndarray | None) -> str:
-    """"RTE 0.12 m, RRE 1.30 deg" of T against the ground truth ("" when either is missing)."""
+    """ "RTE 0.12 m, RRE 1.30 deg" of T against the ground truth ("" when either is missing)."""
     if T is None or T_gt is None:
         return ""
     errors = pose_errors(T, T_gt)
@@ -48,8 +48,10 @@ def pose_panels(frame: Frame, T_pred: np.ndarray | None, title: str = "", failur
         "ground truth (T_gt)": (frame.T_gt, ""),
         "predicted": (T_pred, predicted),
     }
-    return [([f"{title}{name}: {text}".rstrip(": ")], points_panel(frame, T, radius))
-            for name, (T, text) in captions.items()]
+    return [
+        ([f"{title}{name}: {text}".rstrip(": ")], points_panel(frame, T, radius))
+        for name, (T, text) in captions.items()
+    ]
 
 
 def edges_panel(frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D) -> tuple[list[str], np.ndarray]:
@@ -76,8 +78,10 @@ def matches_panel(
             cv2.line(canvas, _cv_point(a), _cv_point(b), colour, 1, cv2.LINE_AA)
             cv2.circle(canvas, _cv_point(a), 2, colour, -1, cv2.LINE_AA)
     n_in = int(is_inlier.sum())
-    return [f"matches: {len(matches)}, {n_in} inliers (green), {len(matches) - n_in} outliers (red); "
-            "line = 2D point to its 3D point under ground truth"], canvas
+    return [
+        f"matches: {len(matches)}, {n_in} inliers (green), {len(matches) - n_in} outliers (red); "
+        "line = 2D point to its 3D point under ground truth"
+    ], canvas
 
 
 def _project_all(frame: Frame, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -19,7 +19,15 @@ import torch
 from ..weights import git_commit
 
 PACKAGES = (
-    "i2pbench", "torch", "numpy", "opencv-contrib-python-headless", "open3d", "pandas", "pyarrow", "pluggy", "poselib",
+    "i2pbench",
+    "torch",
+    "numpy",
+    "opencv-contrib-python-headless",
+    "open3d",
+    "pandas",
+    "pyarrow",
+    "pluggy",
+    "poselib",
 )
 MAX_DEFAULT_THREADS = 4  # the default thread count: this, or fewer on smaller machines
 
@@ -61,7 +69,10 @@ def git_dirty() -> bool | None:
     try:
         out = subprocess.run(
             ["git", "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True, text=True, timeout=10, cwd=Path(__file__).resolve().parent,
+            capture_output=True,
+            text=True,
+            timeout=10,
+            cwd=Path(__file__).resolve().parent,
         )
     except (OSError, subprocess.SubprocessError):
         return None

@@ -72,8 +72,11 @@ class ResultsStore:
 
     def _set_aside(self, path: Path, exc: Exception) -> None:
         aside = path.with_name(path.name + CORRUPT_SUFFIX)
-        print(f"i2pbench: warning: unreadable result {path} ({type(exc).__name__}: {exc}); "
-              f"moved to {aside.name}, it will be recomputed", file=sys.stderr)
+        print(
+            f"i2pbench: warning: unreadable result {path} ({type(exc).__name__}: {exc}); "
+            f"moved to {aside.name}, it will be recomputed",
+            file=sys.stderr,
+        )
         os.replace(path, aside)
 
     def _sweep_dead_temps(self) -> None:

@@ -66,8 +66,14 @@ def _retire(target: Path) -> None:
     shutil.rmtree(trash, ignore_errors=True)
 
 
-def generate(root: Path | str | None = None, n_train: int = 400, n_val: int = 20, n_test: int = 40, seed: int = 0,
-             workers: int | None = None) -> Path:
+def generate(
+    root: Path | str | None = None,
+    n_train: int = 400,
+    n_val: int = 20,
+    n_test: int = 40,
+    seed: int = 0,
+    workers: int | None = None,
+) -> Path:
     """Generate (or reuse) all three splits under root (default ~/.cache/i2pbench/synthetic-v{version}-seed{seed})."""
     root = Path(root).expanduser() if root else default_root(seed)
     for split, n in (("train", n_train), ("val", n_val), ("test", n_test)):
@@ -99,8 +105,9 @@ class SyntheticStreets(Dataset):
         return int(frames[self.split])
 
     def sequence_dir(self) -> Path:
-        return ensure_sequence(self.root, SPLIT_SEQUENCES[self.split], self.n_frames, int(self.conf["seed"]),
-                               self.conf["workers"])
+        return ensure_sequence(
+            self.root, SPLIT_SEQUENCES[self.split], self.n_frames, int(self.conf["seed"]), self.conf["workers"]
+        )
 
     def frame_ids(self) -> list[str]:
         seq = self.sequence_dir()
@@ -109,11 +116,18 @@ class SyntheticStreets(Dataset):
     def load(self, frame_id: str) -> SensorFrame:
         sequence, _, stem = frame_id.partition("/")
         if sequence != SPLIT_SEQUENCES[self.split] or not stem:
-            raise DataError(f"dataset 'synthetic' {self.split}: frame id {frame_id!r} is not of the form "
-                            f"'{SPLIT_SEQUENCES[self.split]}/NNNNNN'")
+            raise DataError(
+                f"dataset 'synthetic' {self.split}: frame id {frame_id!r} is not of the form "
+                f"'{SPLIT_SEQUENCES[self.split]}/NNNNNN'"
+            )
         return read_frame(self.sequence_dir(), stem, 2, self.name, self.match_radius_px)
 
     def identity(self) -> dict[str, Any]:
         """Generator version, seed and frame count fix the data; the folder it sits in does not."""
-        return {"dataset": self.name, "split": self.split, "seed": int(self.conf["seed"]), "frames": self.n_frames,
-                "generator_version": GENERATOR_VERSION}
+        return {
+            "dataset": self.name,
+            "split": self.split,
+            "seed": int(self.conf["seed"]),
+            "frames": self.n_frames,
+            "generator_version": GENERATOR_VERSION,
+        }

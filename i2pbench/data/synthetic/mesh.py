@@ -38,8 +38,17 @@ class MeshBuilder:
 
     def quad(self, p0, a, b, material: int, origin=None, u_axis=None, v_axis=None) -> None:
         """Parallelogram p0, p0+a, p0+a+b, p0+b; texture frame defaults to (p0, a/|a|, b/|b|)."""
-        self._quads.append((p0, a, b, p0 if origin is None else origin, a if u_axis is None else u_axis,
-                            b if v_axis is None else v_axis, material))
+        self._quads.append(
+            (
+                p0,
+                a,
+                b,
+                p0 if origin is None else origin,
+                a if u_axis is None else u_axis,
+                b if v_axis is None else v_axis,
+                material,
+            )
+        )
 
     def box(
         self, center, size, yaw: float, z0: float, side: int, top: int | None = None, bottom_ref: float = 0.0

@@ -25,15 +25,26 @@ from .rig import Camera, Lidar, on_uneven_road
 from .scene import build_scene
 from .version import GENERATOR_VERSION
 
-MINI_TRAIN = ["scene-0061", "scene-0553", "scene-0655", "scene-0757", "scene-0796", "scene-1077", "scene-1094",
-              "scene-1100"]
+MINI_TRAIN = [
+    "scene-0061",
+    "scene-0553",
+    "scene-0655",
+    "scene-0757",
+    "scene-0796",
+    "scene-1077",
+    "scene-1094",
+    "scene-1100",
+]
 MINI_VAL = ["scene-0103", "scene-0916"]
 LIDAR_RECORD = {"translation": [0.943713, 0.0, 1.84023], "rotation": [np.sqrt(0.5), 0.0, 0.0, -np.sqrt(0.5)]}
 CAMERA_RECORD = {
     "translation": [1.70079118954, 0.0159456324149, 1.51095763913],
     "rotation": [0.5, -0.5, 0.5, -0.5],  # camera z forward = ego x, camera x right = ego -y, camera y down = ego -z
-    "camera_intrinsic": [[1266.417203046554, 0.0, 816.2670197447984], [0.0, 1266.417203046554, 491.50706579294757],
-                         [0.0, 0.0, 1.0]],
+    "camera_intrinsic": [
+        [1266.417203046554, 0.0, 816.2670197447984],
+        [0.0, 1266.417203046554, 491.50706579294757],
+        [0.0, 0.0, 1.0],
+    ],
 }
 IMAGE_SIZE = (1600, 900)
 T0 = 1533151603547590  # first timestamp (microseconds)
@@ -55,11 +66,20 @@ def _matrix(record: dict) -> np.ndarray:
 @cache
 def rig() -> tuple[Lidar, Camera]:
     """HDL-32E (ring 0 = -30.67 deg) and CAM_FRONT, posed in the ego frame (= the scene's world frame)."""
-    lidar = Lidar(elevations_deg=np.linspace(-30.67, 10.67, 32), pose=_matrix(LIDAR_RECORD), steps=1080,
-                  azimuth0=np.pi, clockwise=True, max_range=70.0)
+    lidar = Lidar(
+        elevations_deg=np.linspace(-30.67, 10.67, 32),
+        pose=_matrix(LIDAR_RECORD),
+        steps=1080,
+        azimuth0=np.pi,
+        clockwise=True,
+        max_range=70.0,
+    )
     T_ego_cam = _matrix(CAMERA_RECORD)
-    camera = Camera(K=np.array(CAMERA_RECORD["camera_intrinsic"]), T_cam_lidar=np.linalg.inv(T_ego_cam) @ lidar.pose,
-                    size=IMAGE_SIZE)
+    camera = Camera(
+        K=np.array(CAMERA_RECORD["camera_intrinsic"]),
+        T_cam_lidar=np.linalg.inv(T_ego_cam) @ lidar.pose,
+        size=IMAGE_SIZE,
+    )
     return lidar, camera
 
 
@@ -76,8 +96,9 @@ def simulate(seed: int, scene: int, sample: int) -> tuple[np.ndarray, np.ndarray
     return sweep, render(caster, camera, lidar.pose, rng)
 
 
-def generate_nuscenes(dataroot: Path, n_scenes: int = 2, samples_per_scene: int = 2, seed: int = 0,
-                      version: str = "v1.0-mini") -> Path:
+def generate_nuscenes(
+    dataroot: Path, n_scenes: int = 2, samples_per_scene: int = 2, seed: int = 0, version: str = "v1.0-mini"
+) -> Path:
     """Write a dataroot with n_scenes scenes of samples_per_scene keyframes each; returns dataroot."""
     dataroot = Path(dataroot)
     tables = _static_tables(dataroot, seed)
@@ -99,34 +120,65 @@ def _static_tables(dataroot: Path, seed: int) -> dict[str, list[dict]]:
     (dataroot / "maps").mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(dataroot / map_file), np.zeros((4, 4), np.uint8))  # the devkit only checks the mask exists
     return {
-        "category": [], "attribute": [], "visibility": [], "instance": [], "sample_annotation": [],
-        "sensor": [{"token": lidar_sensor, "channel": "LIDAR_TOP", "modality": "lidar"},
-                   {"token": cam_sensor, "channel": "CAM_FRONT", "modality": "camera"}],
+        "category": [],
+        "attribute": [],
+        "visibility": [],
+        "instance": [],
+        "sample_annotation": [],
+        "sensor": [
+            {"token": lidar_sensor, "channel": "LIDAR_TOP", "modality": "lidar"},
+            {"token": cam_sensor, "channel": "CAM_FRONT", "modality": "camera"},
+        ],
         "calibrated_sensor": [
-            {"token": _token(seed, "calib", "LIDAR_TOP"), "sensor_token": lidar_sensor, "camera_intrinsic": [],
-             **{k: LIDAR_RECORD[k] for k in ("translation", "rotation")}},
+            {
+                "token": _token(seed, "calib", "LIDAR_TOP"),
+                "sensor_token": lidar_sensor,
+                "camera_intrinsic": [],
+                **{k: LIDAR_RECORD[k] for k in ("translation", "rotation")},
+            },
             {"token": _token(seed, "calib", "CAM_FRONT"), "sensor_token": cam_sensor, **CAMERA_RECORD},
         ],
-        "log": [{"token": log, "logfile": f"synthetic-v{GENERATOR_VERSION}-seed{seed}", "vehicle": "synthetic",
-                 "date_captured": "2018-08-01", "location": "synthetic-streets"}],
+        "log": [
+            {
+                "token": log,
+                "logfile": f"synthetic-v{GENERATOR_VERSION}-seed{seed}",
+                "vehicle": "synthetic",
+                "date_captured": "2018-08-01",
+                "location": "synthetic-streets",
+            }
+        ],
         "map": [{"token": map_token, "log_tokens": [log], "category": "semantic_prior", "filename": map_file}],
-        "scene": [], "sample": [], "sample_data": [], "ego_pose": [],
+        "scene": [],
+        "sample": [],
+        "sample_data": [],
+        "ego_pose": [],
     }
 
 
 def _write_scene(dataroot: Path, tables: dict, seed: int, scene: int, name: str, n_samples: int) -> None:
     samples = [_token(seed, "sample", scene, k) for k in range(n_samples)]
-    tables["scene"].append({
-        "token": _token(seed, "scene", scene), "log_token": tables["log"][0]["token"], "nbr_samples": n_samples,
-        "first_sample_token": samples[0], "last_sample_token": samples[-1], "name": name,
-        "description": f"synthetic street, seed {seed}",
-    })
+    tables["scene"].append(
+        {
+            "token": _token(seed, "scene", scene),
+            "log_token": tables["log"][0]["token"],
+            "nbr_samples": n_samples,
+            "first_sample_token": samples[0],
+            "last_sample_token": samples[-1],
+            "name": name,
+            "description": f"synthetic street, seed {seed}",
+        }
+    )
     for k, token in enumerate(samples):
         stamp = T0 + scene * 20_000_000 + k * 500_000
-        tables["sample"].append({
-            "token": token, "timestamp": stamp, "scene_token": tables["scene"][-1]["token"],
-            "prev": samples[k - 1] if k else "", "next": samples[k + 1] if k + 1 < n_samples else "",
-        })
+        tables["sample"].append(
+            {
+                "token": token,
+                "timestamp": stamp,
+                "scene_token": tables["scene"][-1]["token"],
+                "prev": samples[k - 1] if k else "",
+                "next": samples[k + 1] if k + 1 < n_samples else "",
+            }
+        )
         sweep, image = simulate(seed, scene, k)
         pose = {"rotation": [1.0, 0.0, 0.0, 0.0], "translation": [600.0 + 10.0 * k, 1600.0 + 100.0 * scene, 0.0]}
         for channel, ext in (("LIDAR_TOP", "pcd.bin"), ("CAM_FRONT", "jpg")):
@@ -144,11 +196,19 @@ def _sample_data(tables, seed, scene, k, n_samples, sample, channel, filename, s
     token = _token(seed, "sd", channel, scene, k)
     width, height = IMAGE_SIZE if channel == "CAM_FRONT" else (0, 0)
     tables["ego_pose"].append({"token": token, "timestamp": stamp, **pose})
-    tables["sample_data"].append({
-        "token": token, "sample_token": sample, "ego_pose_token": token,
-        "calibrated_sensor_token": _token(seed, "calib", channel), "timestamp": stamp,
-        "fileformat": filename.rsplit(".", 1)[-1] if channel == "CAM_FRONT" else "pcd", "is_key_frame": True,
-        "height": height, "width": width, "filename": filename,
-        "prev": _token(seed, "sd", channel, scene, k - 1) if k else "",
-        "next": _token(seed, "sd", channel, scene, k + 1) if k + 1 < n_samples else "",
-    })
+    tables["sample_data"].append(
+        {
+            "token": token,
+            "sample_token": sample,
+            "ego_pose_token": token,
+            "calibrated_sensor_token": _token(seed, "calib", channel),
+            "timestamp": stamp,
+            "fileformat": filename.rsplit(".", 1)[-1] if channel == "CAM_FRONT" else "pcd",
+            "is_key_frame": True,
+            "height": height,
+            "width": width,
+            "filename": filename,
+            "prev": _token(seed, "sd", channel, scene, k - 1) if k else "",
+            "next": _token(seed, "sd", channel, scene, k + 1) if k + 1 < n_samples else "",
+        }
+    )

@@ -48,8 +48,13 @@ def car(b: MeshBuilder, pal: Palette, xy, yaw: float) -> None:
     lamp = pal.plain((0.7, 0.05, 0.05), float(r.uniform(0.6, 0.9)), 0.02)
     for sign in (1, -1):
         b.box(_offset(xy, yaw, sign * (length / 2 + 0.01), 0), (0.04, 0.52, 0.12), yaw, 0.45, plate)
-        b.box(_offset(xy, yaw, -length / 2 - 0.01, sign * (width / 2 - 0.2)), (0.04, 0.25, 0.12), yaw,
-              0.25 + body_h * 0.75, lamp)
+        b.box(
+            _offset(xy, yaw, -length / 2 - 0.01, sign * (width / 2 - 0.2)),
+            (0.04, 0.25, 0.12),
+            yaw,
+            0.25 + body_h * 0.75,
+            lamp,
+        )
 
 
 def street_light(b: MeshBuilder, pal: Palette, xy, yaw: float) -> None:
@@ -116,8 +121,10 @@ def pedestrian(b: MeshBuilder, pal: Palette, xy, yaw: float) -> None:
     r = pal.rng
     height = r.uniform(1.55, 1.95)
     legs = pal.plain(pal.pick([(0.15, 0.15, 0.2), (0.25, 0.3, 0.45), (0.4, 0.35, 0.3)]), float(r.uniform(0.1, 0.4)))
-    top = pal.plain(pal.pick([(0.8, 0.1, 0.1), (0.9, 0.9, 0.9), (0.1, 0.1, 0.1), (0.2, 0.4, 0.7), (0.8, 0.7, 0.2)]),
-                    float(r.uniform(0.1, 0.6)))
+    top = pal.plain(
+        pal.pick([(0.8, 0.1, 0.1), (0.9, 0.9, 0.9), (0.1, 0.1, 0.1), (0.2, 0.4, 0.7), (0.8, 0.7, 0.2)]),
+        float(r.uniform(0.1, 0.6)),
+    )
     skin = pal.plain(pal.pick([(0.85, 0.65, 0.5), (0.55, 0.4, 0.3), (0.35, 0.25, 0.2)]), 0.35)
     leg_h, torso_h = 0.47 * height, 0.33 * height
     for across in (-0.1, 0.1):
@@ -135,8 +142,12 @@ def bush(b: MeshBuilder, pal: Palette, xy, _yaw: float = 0.0) -> None:
     scale = np.array([size * r.uniform(0.8, 1.5), size * r.uniform(0.8, 1.5), size * r.uniform(0.5, 0.9)])
     lump = 1 + 0.2 * r.standard_normal(len(verts))
     angle = r.uniform(0, np.pi)
-    b.triangles(verts * lump[:, None] * scale + [xy[0], xy[1], scale[2] * 0.6], tris, pal.foliage(),
-                [np.cos(angle), np.sin(angle), 0.0])
+    b.triangles(
+        verts * lump[:, None] * scale + [xy[0], xy[1], scale[2] * 0.6],
+        tris,
+        pal.foliage(),
+        [np.cos(angle), np.sin(angle), 0.0],
+    )
 
 
 def bollard(b: MeshBuilder, pal: Palette, xy, _yaw: float = 0.0) -> None:
@@ -151,5 +162,10 @@ def bin_(b: MeshBuilder, pal: Palette, xy, yaw: float) -> None:
     """Wheelie bin or litter bin."""
     r = pal.rng
     colour = pal.pick([(0.1, 0.3, 0.15), (0.2, 0.2, 0.22), (0.15, 0.3, 0.6), (0.6, 0.5, 0.1)])
-    b.box(xy, (r.uniform(0.5, 0.8), r.uniform(0.5, 0.8), r.uniform(0.9, 1.2)), yaw, 0.0,
-          pal.plain(colour, float(r.uniform(0.1, 0.35)), 0.1))
+    b.box(
+        xy,
+        (r.uniform(0.5, 0.8), r.uniform(0.5, 0.8), r.uniform(0.9, 1.2)),
+        yaw,
+        0.0,
+        pal.plain(colour, float(r.uniform(0.1, 0.35)), 0.1),
+    )

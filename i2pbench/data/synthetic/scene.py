@@ -87,8 +87,11 @@ def _road(rng: np.random.Generator) -> tuple[Road, list[float]]:
     lines = sorted(lines)
     crossing = (float(rng.uniform(12, 60)), float(rng.uniform(8, 14))) if rng.random() < 0.35 else None
     road = Road(
-        yaw=float(rng.normal(0, 0.06)), t_left=lines[-1] + parking[0], t_right=lines[0] - parking[1],
-        kerb=float(rng.uniform(0.08, 0.18)), parking=(float(parking[0]), float(parking[1])),
+        yaw=float(rng.normal(0, 0.06)),
+        t_left=lines[-1] + parking[0],
+        t_right=lines[0] - parking[1],
+        kerb=float(rng.uniform(0.08, 0.18)),
+        parking=(float(parking[0]), float(parking[1])),
         walk=(float(rng.uniform(1.8, 5)), float(rng.uniform(1.8, 5))),
         crossing=crossing,
     )
@@ -100,8 +103,10 @@ def _ground(b: MeshBuilder, pal: Palette, road: Road, lanes: list[float]) -> Non
     up = np.array([0.0, 0.0, 0.0])
     ex, ey = np.array([*road.world(1, 0), 0.0]), np.array([*road.world(0, 1), 0.0])
     b.quad(up - ex * 400 - ey * 400 + [0, 0, -0.03], ex * 800, ey * 800, pal.terrain())
-    lines = [(t, 0.15, 0.0 if i in (0, len(lanes) - 1) else 3.0, 0.0 if i in (0, len(lanes) - 1) else 6.0)
-             for i, t in enumerate(lanes)]
+    lines = [
+        (t, 0.15, 0.0 if i in (0, len(lanes) - 1) else 3.0, 0.0 if i in (0, len(lanes) - 1) else 6.0)
+        for i, t in enumerate(lanes)
+    ]
     extra: dict = {}
     if road.crossing is not None:
         s0, w = road.crossing
@@ -256,9 +261,11 @@ def _lighting(rng: np.random.Generator) -> Lighting:
     sun = np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
     strength = rng.uniform(0.3, 1.0)
     return Lighting(
-        sun=sun, sun_rgb=np.array([1.0, 0.96, 0.88]) * strength * 1.1,
+        sun=sun,
+        sun_rgb=np.array([1.0, 0.96, 0.88]) * strength * 1.1,
         ambient_rgb=np.array([0.5, 0.55, 0.65]) * rng.uniform(0.35, 0.6),
         sky_horizon=np.array([0.85, 0.88, 0.92]) * rng.uniform(0.85, 1.0),
         sky_zenith=np.array([0.35, 0.55, 0.85]) * rng.uniform(0.7, 1.0),
-        cloud_seed=int(rng.integers(2**31)), cloud_level=float(rng.uniform(0.4, 1.0)),
+        cloud_seed=int(rng.integers(2**31)),
+        cloud_level=float(rng.uniform(0.4, 1.0)),
     )

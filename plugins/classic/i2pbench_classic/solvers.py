@@ -65,7 +65,10 @@ class EPnPRansacSolver(PoseSolver):
         cv2.setRNGSeed(int(self.conf["seed"]))
         try:
             ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-                xyz, uv, frame.K.astype(np.float64), None,
+                xyz,
+                uv,
+                frame.K.astype(np.float64),
+                None,
                 iterationsCount=int(self.conf["iterations"]),
                 reprojectionError=float(self.conf["reprojection_error_px"]),
                 confidence=float(self.conf["confidence"]),
