@@ -10,7 +10,6 @@ import datetime
 import hashlib
 import json
 import os
-import subprocess
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ import torch
 
 from .errors import WeightsError
 from .pipeline import Pipeline
+from .provenance import git_commit
 
 FORMAT = "i2pbench-checkpoint/1"
 EXTRACTOR_KINDS = ("extractor2d", "extractor3d")
@@ -44,20 +44,6 @@ class Checkpoint:
 
 def file_digest(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
-def git_commit() -> str:
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"],
-            capture_output=True,
-            text=True,
-            timeout=5,
-            cwd=Path(__file__).resolve().parent,
-        )
-        return out.stdout.strip() or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
 
 
 def stage_signature(pipeline: Pipeline) -> dict[str, dict[str, Any]]:

@@ -10,13 +10,11 @@ from __future__ import annotations
 import importlib.metadata
 import os
 import platform
-import subprocess
-from pathlib import Path
 
 import cv2
 import torch
 
-from ..weights import git_commit
+from ..provenance import git_commit, git_dirty
 
 PACKAGES = (
     "i2pbench",
@@ -62,21 +60,6 @@ def _version(package: str) -> str:
         return importlib.metadata.version(package)
     except importlib.metadata.PackageNotFoundError:
         return "not installed"
-
-
-def git_dirty() -> bool | None:
-    """Whether the checkout has uncommitted changes (then the commit alone does not name the code)."""
-    try:
-        out = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True,
-            text=True,
-            timeout=10,
-            cwd=Path(__file__).resolve().parent,
-        )
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return bool(out.stdout.strip()) if out.returncode == 0 else None
 
 
 def environment() -> dict:
