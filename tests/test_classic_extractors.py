@@ -91,6 +91,14 @@ def test_depth_ignores_points_without_a_return():
     assert selected(DepthExtractor(), scan_frame([0, 10, 10, 10])) == []
 
 
+def test_points_with_non_finite_coordinates_are_never_selected():
+    frame = scan_frame(STEP)
+    frame.points[8, :3] = np.nan  # the drop's target (see STEP) is a corrupt return
+    assert selected(DepthExtractor(), frame) == [2]
+    frame.points[:5, 0] = np.inf
+    assert selected(RandomExtractor3D({"max_keypoints": None}), frame) == [5, 6, 7, 9, 10]
+
+
 # --- reflectance: R = .1 .1 .5 .5 .5 .2 .2; rise at 1 (+0.4) selects 0, drop at 4 (-0.3) selects 5; +-0.15 never.
 REFL = [0.1, 0.1, 0.5, 0.5, 0.5, 0.2, 0.2]
 

@@ -22,16 +22,6 @@ SMALL_CONFS = {
     ("exchanger", "attention"): {"descriptor_dim": 32, "num_blocks": 1, "num_heads": 2, "pe_mlp": (16, 32)},
     ("matcher", "lightglue"): {"descriptor_dim": 32},
 }
-# Known findings, reported to their owners: these stages pass NaN coordinates of a corrupt scan through to their
-# output instead of skipping those points or refusing the scan. The pipeline's own contract check still turns that
-# into a failed frame (and the KITTI and nuScenes readers refuse NaN points), so a run never scores garbage.
-KNOWN_NAN_PASS_THROUGH = {
-    ("extractor3d", "depth"),
-    ("extractor3d", "reflectance"),
-    ("extractor3d", "depth+reflectance"),
-    ("extractor3d", "random"),
-    ("encoder3d", "pointnet2"),
-}
 
 COMPONENTS = sorted((kind, name) for kind, table in default_registry().components.items() for name in table)
 
@@ -47,13 +37,7 @@ def _one_thread():
 @pytest.mark.parametrize(("kind", "name"), COMPONENTS, ids=[f"{k}-{n}" for k, n in COMPONENTS])
 def test_builtin_component_conforms(kind, name):
     report = check_component(default_registry().component(kind, name), SMALL_CONFS.get((kind, name)))
-    known = [
-        p for p in report if (kind, name) in KNOWN_NAN_PASS_THROUGH and p.check == "bad input" and "NaN" in p.message
-    ]
-    unexpected = [p for p in report if p not in known]
-    assert not unexpected, str(report)
-    if known:
-        pytest.xfail(f"known: {known[0].message}")
+    assert not list(report), str(report)
 
 
 def test_every_stage_kind_has_a_builtin_to_check():

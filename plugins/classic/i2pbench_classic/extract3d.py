@@ -103,6 +103,7 @@ class EdgeExtractor3D(Extractor3D):
 
     def __call__(self, frame: Frame) -> Keypoints3D:
         index = sorted_unique(self.candidates(frame))
+        index = index[np.isfinite(frame.points[index]).all(1)]  # a corrupt return is never a keypoint
         keep = cap(index.size, self.conf["max_keypoints"], self.conf["seed"], frame)
         return Keypoints3D.from_index(frame, index[keep])
 

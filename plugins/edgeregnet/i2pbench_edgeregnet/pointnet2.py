@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from i2pbench.api import Encoder3D, Frame, Keypoints3D, LearnedComponent
+from i2pbench.api import Encoder3D, Frame, Keypoints3D, LearnedComponent, StageError
 
 
 def farthest_point_sampling(xyz: torch.Tensor, n: int, start: int = 0) -> torch.Tensor:
@@ -140,7 +140,12 @@ class PointNet2Encoder(LearnedComponent, Encoder3D):
 
     def __call__(self, frame: Frame, kp3d: Keypoints3D) -> torch.Tensor:
         device = next(self.parameters()).device
+        if not np.isfinite(kp3d.xyz).all() or not np.isfinite(kp3d.reflectance).all():
+            raise StageError(self.label, "3D keypoints with non-finite coordinates or reflectance (corrupt scan?)")
         points = frame.points
+        finite = np.isfinite(points).all(1)
+        if not finite.all():  # a corrupt return must not poison the normalisation; clean scans keep their subset
+            points = points[finite]
         if len(points) > self.conf["num_points"]:
             rng = np.random.default_rng(frame_seed(frame))
             points = points[rng.choice(len(points), self.conf["num_points"], replace=False)]
