@@ -1,7 +1,8 @@
 """Ground-truth 2D-3D correspondences: project 3D keypoints with T_gt, pair each with the nearest 2D keypoint.
 
-Used by the oracle matcher, the edge-quality diagnostics and training losses, so all three agree on what a true
-match is: a 3D keypoint whose projection lies within eps_c pixels of a 2D keypoint.
+Used by the oracle matcher, the edge-quality diagnostics, training losses and the inlier ratio of a run's matches,
+so all of them agree on what a true match is: a 3D keypoint whose projection lies within eps_c pixels of a 2D
+keypoint.
 """
 
 from __future__ import annotations
@@ -48,3 +49,14 @@ def ground_truth_matches(
     matchable3d = np.zeros(len(kp3d), bool)
     matchable3d[index3d] = True
     return GroundTruthMatches(index2d, index3d, dist, in_fov, matchable2d, matchable3d)
+
+
+def true_match_mask(frame: Frame, uv: np.ndarray, xyz: np.ndarray, radius_px: float | None = None) -> np.ndarray:
+    """[K] bool: which matched pairs (pixel uv[k], LiDAR point xyz[k]) are true under T_gt, i.e. the point projects
+    in front of the camera within eps_c pixels of its pixel."""
+    if frame.T_gt is None:
+        raise ValueError("true_match_mask needs a frame with T_gt")
+    radius = frame.match_radius_px if radius_px is None else radius_px
+    projected, front = project(frame.K, frame.T_gt, np.asarray(xyz, np.float64).reshape(-1, 3))
+    distance = np.linalg.norm(projected - np.asarray(uv, np.float64).reshape(-1, 2), axis=1)
+    return front & (distance < radius)

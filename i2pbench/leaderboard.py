@@ -21,6 +21,7 @@ GROUP = ["dataset", "split", "combination", "weights"]
 ACC, RTE, RRE = "Acc. (%) ↑", "RTE (m) ↓", "RRE (°) ↓"
 RTE_MEAN, RRE_MEAN = "rte_mean", "rre_mean"
 MODEL_SIZE = "model size (MB) ↓"
+INLIER_RATIO, TRUE_MATCHES = "inlier ratio (%) ↑", "true matches median ↑"
 LATENCY_PREFIX = "latency"
 LATENCY_MEDIAN, LATENCY_P90 = "latency median (ms) ↓", "latency p90 (ms) ↓"
 
@@ -50,6 +51,21 @@ def _latency(records: pd.DataFrame) -> dict[str, float]:
     return row
 
 
+def _match_quality(records: pd.DataFrame) -> dict[str, float]:
+    """Share of a frame's matches that are true under T_gt (within eps_c), averaged over the frames whose matcher
+    returned matches, and the median count of true matches over the frames whose matcher ran. What limits a
+    solver: RANSAC over EPnP needs a handful of true matches and a share it can sample from."""
+    if "n_true_matches" not in records:  # records written before the column existed
+        return {INLIER_RATIO: np.nan, TRUE_MATCHES: np.nan}
+    ran = records[records["n_true_matches"].notna()]
+    with_matches = ran[ran["n_matches"] > 0]
+    ratio = with_matches["n_true_matches"] / with_matches["n_matches"]
+    return {
+        INLIER_RATIO: round(100.0 * float(ratio.mean()), 2) if len(ratio) else np.nan,
+        TRUE_MATCHES: float(ran["n_true_matches"].median()) if len(ran) else np.nan,
+    }
+
+
 def _row(records: pd.DataFrame, protocol: Protocol) -> dict:
     stats = summarize(records["rte_m"], records["rre_deg"], protocol)
     first = records.iloc[0]
@@ -68,6 +84,7 @@ def _row(records: pd.DataFrame, protocol: Protocol) -> dict:
         RRE_MEAN: stats["rre_mean"],
         "rre_std": stats["rre_std"],
         "geodesic median (°) ↓": float(np.nanmedian(geo)) if geo.notna().any() else np.nan,
+        **_match_quality(records),
         MODEL_SIZE: round(float(first["model_size_mb"]), 3),
         **_latency(records),
     }
@@ -100,6 +117,7 @@ DISPLAY = [
     ACC,
     RTE,
     RRE,
+    INLIER_RATIO,
     MODEL_SIZE,
     LATENCY_MEDIAN,
     LATENCY_P90,

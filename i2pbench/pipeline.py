@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 import torch
 
 from . import contracts
@@ -89,6 +90,8 @@ class FrameOutcome:
     n_matches: int = 0
     error: str = ""
     failed_component: str = ""
+    matched_uv: np.ndarray | None = None  # [K x 2] pixels of the matcher's pairs (None: the matcher did not run)
+    matched_xyz: np.ndarray | None = None  # [K x 3] LiDAR points of the same pairs, for the metrics' inlier ratio
 
     @property
     def n_inliers(self) -> int:
@@ -146,7 +149,7 @@ class Pipeline:
         overruns is failed in the name of the stage that was running.
         """
         timings: dict[str, float] = {}
-        counts = {"n_kp2d": 0, "n_kp3d": 0, "n_matches": 0}
+        counts: dict[str, Any] = {"n_kp2d": 0, "n_kp3d": 0, "n_matches": 0}
         current = [""]  # the stage running when an exception escapes or time runs out
         try:
             estimate = self.limiter.call(lambda: self._run_stages(frame, timings, counts, current))
@@ -164,9 +167,14 @@ class Pipeline:
     def _run_stages(
         self, frame: Frame, timings: dict[str, float], counts: dict[str, int], current: list[str]
     ) -> PoseEstimate:
+        kept: dict[str, Any] = {}
         with torch.inference_mode():
             for kind, result in self._stages(frame, timings, current):
                 _count(kind, result, counts)
+                kept[kind] = result
+                if kind == "matcher":
+                    counts["matched_uv"] = kept["extractor2d"].uv[result.index2d]
+                    counts["matched_xyz"] = kept["extractor3d"].xyz[result.index3d]
         return result
 
     def _stages(self, frame: Frame, timings: dict[str, float], current: list[str]):
@@ -214,7 +222,7 @@ def _timed(component: Component, *args: Any) -> tuple[Any, float]:
     return out, time.perf_counter() - start
 
 
-def _count(kind: str, result: Any, counts: dict[str, int]) -> None:
+def _count(kind: str, result: Any, counts: dict[str, Any]) -> None:
     key = {"extractor2d": "n_kp2d", "extractor3d": "n_kp3d", "matcher": "n_matches"}.get(kind)
     if key:
         counts[key] = len(result)

@@ -45,6 +45,7 @@ def test_a_six_combination_grid_gives_one_leaderboard_reproduced_up_to_latency(k
         (e2, e3) for e2 in GRID["extractor2d"] for e3 in GRID["extractor3d"]
     }
     assert (first["frames"] == 2).all() and (first["failures"] == 0).all()
+    assert (first[leaderboard.INLIER_RATIO] == 100.0).all()  # the oracle's pairs are true by construction
     latency = leaderboard.latency_columns(first)
     assert leaderboard.LATENCY_MEDIAN in latency and (first[latency].fillna(1) > 0).all().all()
     pd.testing.assert_frame_equal(first.drop(columns=latency), second.drop(columns=latency))

@@ -8,7 +8,16 @@ import pytest
 
 from i2pbench import leaderboard
 from i2pbench.components import STAGE_ORDER
-from i2pbench.leaderboard import ACC, LATENCY_MEDIAN, LATENCY_P90, RRE, RTE, stage_latency
+from i2pbench.leaderboard import (
+    ACC,
+    INLIER_RATIO,
+    LATENCY_MEDIAN,
+    LATENCY_P90,
+    RRE,
+    RTE,
+    TRUE_MATCHES,
+    stage_latency,
+)
 
 
 def _records(combination: str, rte, rre, t_total, crashed=()) -> pd.DataFrame:
@@ -70,6 +79,19 @@ def test_latency_is_over_frames_whose_pipeline_ran_with_median_and_p90_per_stage
 def test_nothing_inside_the_filter_gives_nan_errors_not_zero():
     board = leaderboard.build(_records("far", [4.0, 6.0], [20.0, 30.0], [0.01, 0.01]))
     assert board.loc[0, ACC] == 0.0 and np.isnan(board.loc[0, "rte_mean"]) and board.loc[0, RTE] == "-"
+
+
+def test_inlier_ratio_averages_frames_with_matches_and_true_matches_take_the_median_where_the_matcher_ran():
+    records = _records("m", [0.1, 0.1, 0.1, math.inf], [1.0, 1.0, 1.0, math.inf], [0.01] * 4, crashed=(3,))
+    records["n_matches"] = [10, 4, 0, 0]
+    records["n_true_matches"] = [5.0, 1.0, 0.0, math.nan]  # frame 3 crashed before its matcher ran
+    row = leaderboard.build(records).iloc[0]
+    assert row[INLIER_RATIO] == pytest.approx(37.5)  # (5/10 + 1/4) / 2; frame 2 has no match to be right or wrong
+    assert row[TRUE_MATCHES] == 1.0  # median of 5, 1, 0
+
+
+def test_records_without_match_counts_give_nan_match_quality(board):
+    assert board[INLIER_RATIO].isna().all() and board[TRUE_MATCHES].isna().all()
 
 
 def test_files_round_trip_and_markdown_has_arrows(board, tmp_path):

@@ -17,13 +17,14 @@ import pandas as pd
 import torch
 
 from ..components import STAGE_ORDER
+from ..correspondence import true_match_mask
 from ..data.base import Dataset
 from ..errors import I2PBenchError
 from ..metrics import pose_errors
 from ..pipeline import Combination, FrameOutcome, Pipeline
 from ..plugins import Registry
 from ..protocol import Protocol
-from ..types import PoseEstimate
+from ..types import Frame, PoseEstimate
 from ..weights import apply_checkpoint, select_checkpoint
 from .store import ResultsStore, cache_key
 
@@ -143,7 +144,7 @@ def run_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> 
         return _record(job, dataset, frame_id, protocol, outcome, None, elapsed, elapsed)
     loaded = time.perf_counter()
     outcome = job.pipeline.run(frame)
-    return _record(job, dataset, frame_id, protocol, outcome, frame.T_gt, loaded - start, time.perf_counter() - start)
+    return _record(job, dataset, frame_id, protocol, outcome, frame, loaded - start, time.perf_counter() - start)
 
 
 def labels(job: Job) -> dict[str, str]:
@@ -156,11 +157,11 @@ def _record(
     frame_id: str,
     protocol: Protocol,
     outcome: FrameOutcome,
-    T_gt: np.ndarray | None,
+    frame: Frame | None,
     load: float,
     wall: float,
 ) -> dict[str, Any]:
-    T_pred = outcome.estimate.T
+    T_pred, T_gt = outcome.estimate.T, (frame.T_gt if frame is not None else None)
     errors = pose_errors(T_pred, T_gt) if T_gt is not None else pose_errors(None, np.eye(4))
     record: dict[str, Any] = {
         "dataset": dataset.name,
@@ -181,6 +182,7 @@ def _record(
         "n_kp3d": outcome.n_kp3d,
         "n_matches": outcome.n_matches,
         "n_inliers": outcome.n_inliers,
+        "n_true_matches": true_matches(frame, outcome),
         "model_size_mb": job.pipeline.model_size_mb(),
         "threads": torch.get_num_threads(),
         "device": job.device,
@@ -192,6 +194,13 @@ def _record(
     }
     record.update({f"t_{kind}_s": outcome.timings.get(kind, np.nan) for kind in STAGE_ORDER})
     return record
+
+
+def true_matches(frame: Frame | None, outcome: FrameOutcome) -> float:
+    """How many of the matcher's pairs are true under T_gt (within eps_c); NaN when the matcher did not run."""
+    if frame is None or frame.T_gt is None or outcome.matched_uv is None or outcome.matched_xyz is None:
+        return float("nan")
+    return float(true_match_mask(frame, outcome.matched_uv, outcome.matched_xyz).sum())
 
 
 def run_grid(
