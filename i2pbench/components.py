@@ -157,6 +157,9 @@ class LearnedComponent(Component, torch.nn.Module):
     """A component with parameters; its weights live in a checkpoint shared by the pipeline's learned stages."""
 
     learned = True
+    # config keys that only steer inference (score thresholds, filters): a checkpoint fits whatever their values, so
+    # `--conf matcher.filter_threshold=0.2` can sweep them over shipped weights
+    runtime_keys: ClassVar[frozenset[str]] = frozenset()
 
     def __init__(self, conf: Mapping[str, Any] | None = None) -> None:
         torch.nn.Module.__init__(self)

@@ -107,13 +107,21 @@ def mismatch(checkpoint: Checkpoint, pipeline: Pipeline, *, strict_extractors: b
     if not strict_extractors:
         kinds -= set(EXTRACTOR_KINDS)
     for kind in sorted(kinds):
-        w, h = want.get(kind), have.get(kind)
+        runtime = getattr(pipeline.stages.get(kind), "runtime_keys", frozenset())
+        w, h = _without(want.get(kind), runtime), _without(have.get(kind), runtime)
         if w != h:
             return (
                 f"{kind}: the pipeline has {_short(w)} but checkpoint {checkpoint.path.name} was trained with "
                 f"{_short(h)}"
             )
     return None
+
+
+def _without(sig: dict[str, Any] | None, keys: frozenset[str]) -> dict[str, Any] | None:
+    """A stage signature less its runtime-only config keys (checkpoints store them all, for the record)."""
+    if sig is None or not keys:
+        return sig
+    return {**sig, "conf": {k: v for k, v in sig["conf"].items() if k not in keys}}
 
 
 def _short(sig: dict[str, Any] | None) -> str:

@@ -48,3 +48,25 @@ def test_shipped_configs_build_and_agree(variant):
     upstream = {kind: cls(conf[kind]) for kind, cls in classes.items()}
     assert LightGlueMatcher(conf["matcher"]).check_compatible(upstream) is None
     assert {kind: cls.name for kind, cls in classes.items()} | {"matcher": "lightglue"} == configs.COMPONENTS
+
+
+def _matcher_pipeline(**matcher_conf):
+    from i2pbench.pipeline import Combination, Pipeline
+
+    stages = {"extractor2d": "random", "extractor3d": "random", **configs.COMPONENTS, "exchanger": "none"}
+    confs = {"encoder2d": SMALL, "encoder3d": SMALL, "matcher": {**SMALL, **matcher_conf}}
+    combination = Combination({**stages, "solver": "epnp-ransac"}, confs)
+    return Pipeline.build(build_registry(), combination)
+
+
+def test_inference_thresholds_do_not_change_which_checkpoint_fits(tmp_path):
+    from i2pbench.errors import WeightsError
+    from i2pbench.weights import apply_checkpoint, load_checkpoint, save_checkpoint
+
+    checkpoint = load_checkpoint(save_checkpoint(tmp_path / "m.pt", _matcher_pipeline(), steps=1))
+    swept = _matcher_pipeline(filter_threshold=0.2, fov_filter=False)
+    apply_checkpoint(swept, checkpoint)  # runtime keys: accepted
+    assert swept.weights_identity == checkpoint.identity
+    assert checkpoint.meta["stages"]["matcher"]["conf"]["filter_threshold"] == 0.0  # stored for the record
+    with pytest.raises(WeightsError, match="eps_c"):  # a loss setting is part of how the weights were made
+        apply_checkpoint(_matcher_pipeline(eps_c=5.0), checkpoint)

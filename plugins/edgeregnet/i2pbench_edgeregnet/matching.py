@@ -68,6 +68,7 @@ class LightGlueMatcher(LearnedComponent, Matcher):
     """Mutual maxima of the soft partial assignment P between 2D and 3D edge descriptors."""
 
     name = "lightglue"
+    runtime_keys = frozenset({"filter_threshold", "fov_filter"})  # inference only: any value fits a checkpoint
     default_conf: dict[str, Any] = {
         "descriptor_dim": 256,  # D, must equal the encoders' (and the exchanger's)
         "filter_threshold": 0.0,  # a match also needs P_ij above this (LightGlue uses 0.1)
