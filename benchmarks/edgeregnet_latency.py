@@ -1,9 +1,9 @@
 """Per-stage CPU latency and model size of EdgeRegNet's learned stages at KITTI size, full and small configs.
 
 A synthetic KITTI-sized frame (1241 x 376 image, a 120k-point 64-beam-like sweep) with 3000 + 3000 keypoints for the
-full config and 1024 + 1024 for the small one; content does not change the cost of any stage. Prints the median of
-`--repeat` inference runs per stage (after one warm-up), the farthest point sampling 20,480 -> 5,120 on its own, one
-training step (forward, loss, backward) and the float32 parameter size.
+full config and configs.SMALL_KEYPOINTS + SMALL_KEYPOINTS for the small one; content does not change the cost of any
+stage. Prints the median of `--repeat` inference runs per stage (after one warm-up), the farthest point sampling
+20,480 -> 5,120 on its own, one training step (forward, loss, backward) and the float32 parameter size.
 
     .venv/bin/python benchmarks/edgeregnet_latency.py [--repeat 5] [--threads 2] [--configs full small]
 """

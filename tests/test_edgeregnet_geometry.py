@@ -12,6 +12,8 @@ from i2pbench_edgeregnet.pointnet2 import (
 )
 from i2pbench_edgeregnet.superpoint import sample_descriptors
 
+from i2pbench.geometry import make_transform, rot_z
+
 
 def coordinate_map(hc: int, wc: int) -> torch.Tensor:
     """[1 x 2 x Hc x Wc]: channel 0 holds each cell's column j, channel 1 its row i."""
@@ -92,6 +94,36 @@ def test_normalisations():
     uv = torch.tensor([[0.0, 0.0], [100.0, 25.0], [200.0, 50.0]])
     expected = torch.tensor([[-1.0, -0.25], [0.0, 0.0], [1.0, 0.25]])
     torch.testing.assert_close(normalize_pixels(uv, (200, 50)), expected)
+
+
+def test_canonical_frame_by_hand():
+    # planar offsets from the centroid (0, 2) lie on the y axis at -2, -1, 3: the major axis is y, and the third moment
+    # along +y is -8 - 1 + 27 > 0, so canonical x = +y and canonical y = z cross x = -x; z is kept
+    cloud = torch.tensor([[0.0, 0, 1], [0.0, 1, 1], [0.0, 5, 1]])
+    expected = torch.tensor([[-2.0, 0, 0], [-1.0, 0, 0], [3.0, 0, 0]]) / 3
+    torch.testing.assert_close(normalize_points(cloud, cloud, canonical=True), expected)
+    flipped = cloud * torch.tensor([1.0, -1.0, 1.0])  # mirrored along y: the moment picks -y, same coordinates
+    torch.testing.assert_close(normalize_points(flipped, flipped, canonical=True), expected)
+
+
+def skewed_cloud(n: int = 4000) -> torch.Tensor:
+    g = torch.Generator().manual_seed(0)
+    cloud = torch.randn(n, 3, generator=g) * torch.tensor([20.0, 5.0, 1.0])
+    cloud[:, 0] += 0.02 * cloud[:, 0] ** 2  # a longer tail on one side: the third moment has a clear sign
+    return cloud
+
+
+def moved(cloud: torch.Tensor, yaw: float, tx: float, ty: float) -> torch.Tensor:
+    T = torch.from_numpy(make_transform(rot_z(yaw), np.array([tx, ty, 0.0]))).float()
+    return cloud @ T[:3, :3].t() + T[:3, 3]
+
+
+@pytest.mark.parametrize(("yaw", "tx", "ty"), [(0.3, 4.0, -7.0), (2.0, -10.0, 3.0), (-2.9, 0.0, 9.0), (5.5, 1, 1)])
+def test_canonical_frame_ignores_the_protocols_yaw_and_planar_translation(yaw, tx, ty):
+    cloud = skewed_cloud()
+    other = moved(cloud, yaw, tx, ty)
+    torch.testing.assert_close(normalize_points(other, other, True), normalize_points(cloud, cloud, True), atol=1e-5, rtol=0)
+    assert not torch.allclose(normalize_points(other, other), normalize_points(cloud, cloud), atol=1e-2)
 
 
 def test_a_half_size_image_samples_like_stride_16():

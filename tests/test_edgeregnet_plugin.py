@@ -70,3 +70,15 @@ def test_inference_thresholds_do_not_change_which_checkpoint_fits(tmp_path):
     assert checkpoint.meta["stages"]["matcher"]["conf"]["filter_threshold"] == 0.0  # stored for the record
     with pytest.raises(WeightsError, match="eps_c"):  # a loss setting is part of how the weights were made
         apply_checkpoint(_matcher_pipeline(eps_c=5.0), checkpoint)
+
+
+def test_the_shipped_checkpoints_fit_the_presets_that_use_them():
+    """Configs and committed weights move together: the default row and the no-exchange row get their checkpoints."""
+    from i2pbench.grid import base_combinations, expand
+    from i2pbench.runs.runner import prepare
+
+    registry = build_registry()
+    rows = expand(base_combinations(registry, "baselines"), {}, None, registry)
+    weights = {job.combination.name("exchanger"): job.weights for job in prepare(registry, rows)[:2]}
+    assert weights["attention"].startswith("edgeregnet-cpu-synthetic@")
+    assert weights["none"].startswith("edgeregnet-cpu-noexchange-synthetic@")

@@ -139,3 +139,31 @@ def test_a_resized_image_gives_descriptors_for_every_pixel():
     frame, kp2d, _ = tiny_frame()
     encoder = SuperPointEncoder({**TINY["encoder2d"], "image_scale": 0.5})
     assert encoder(frame, kp2d).shape == (len(kp2d), D)
+
+
+def test_with_the_canonical_frame_3d_descriptors_ignore_the_random_transform():
+    from i2pbench.geometry import make_transform, rot_z
+
+    frame, kp2d, kp3d = tiny_frame()
+    rng = np.random.default_rng(1)
+    skewed = frame.points.copy()
+    skewed[:, 0] = rng.exponential(8.0, len(skewed))  # a long tail ahead: a clear principal axis and moment sign
+    T = make_transform(rot_z(2.2), np.array([-6.0, 9.0, 0.0]))
+    moved = skewed.copy()
+    moved[:, :3] = skewed[:, :3] @ T[:3, :3].T + T[:3, 3]
+    frames = [Frame("tiny", "0", frame.image, p, frame.ring, frame.ranges, frame.K, None) for p in (skewed, moved)]
+    kps = [Keypoints3D.from_index(f, kp3d.index) for f in frames]
+    torch.manual_seed(0)
+    encoder = PointNet2Encoder({**TINY["encoder3d"], "canonical_yaw": True}).eval()
+    exchanger = AttentionExchanger({**TINY["exchanger"], "canonical_yaw": True}).eval()
+    d2 = torch.nn.functional.normalize(torch.randn(len(kp2d), D), dim=-1)
+    with torch.no_grad():
+        d3 = [encoder(f, k) for f, k in zip(frames, kps, strict=True)]
+        out = [exchanger(f, kp2d, k, Features(d2, d)) for f, k, d in zip(frames, kps, d3, strict=True)]
+    # float rounding can move a neighbour across a ball's radius: equal up to that, far from the paper's encoder
+    torch.testing.assert_close(d3[1], d3[0], atol=2e-3, rtol=0)
+    torch.testing.assert_close(out[1].desc3d, out[0].desc3d, atol=2e-3, rtol=0)
+    torch.testing.assert_close(out[1].desc2d, out[0].desc2d, atol=2e-3, rtol=0)
+    plain = PointNet2Encoder(TINY["encoder3d"]).eval()
+    with torch.no_grad():
+        assert not torch.allclose(plain(frames[1], kps[1]), plain(frames[0], kps[0]), atol=1e-2)  # the paper's: not

@@ -134,7 +134,7 @@ def test_extractor_caps_pinned_for_the_learned_stages_leave_with_them():
     registry = default_registry()
     bases = base_combinations(registry, None)
     learned = expand(bases, {"extractor2d": ["canny"]}, registry=registry)[0]
-    assert learned.confs["extractor3d"]["max_keypoints"] == 1024  # still serving the CPU-sized network
+    assert learned.confs["extractor3d"]["max_keypoints"] == 2048  # still serving the CPU-sized network
     assert "extractor2d" not in learned.confs  # canny is not the base's lsd: its own defaults
     classic = expand(bases, {"matcher": ["oracle"]}, registry=registry)[0]
     assert classic.confs == {} and classic.variant == ""

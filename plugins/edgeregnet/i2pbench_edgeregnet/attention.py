@@ -4,7 +4,8 @@ Each block updates both sets with self-attention, then exchanges messages 2D <->
 the same inputs for both directions (as SuperGlue and LightGlue). An update is x + MLP([x, message]) (LightGlue's).
 2D and 3D get their own weights by default (the modalities differ); `share_weights` ties them as SuperGlue does.
 Positions: pixels are centred and divided by half the image's longer side; 3D edge points are centred on their
-centroid and divided by their largest distance to it (translation-invariant, as the PointNet++ encoder's input).
+centroid and divided by their largest distance to it (translation-invariant, as the PointNet++ encoder's input), and
+optionally turned into their yaw-canonical frame (canonical.py).
 """
 
 from __future__ import annotations
@@ -81,6 +82,7 @@ class AttentionExchanger(LearnedComponent, Exchanger):
         "num_heads": 4,
         "pe_mlp": (32, 64, 128),  # hidden widths of the positional encoders (2D: u, v; 3D: x, y, z) before D
         "share_weights": False,  # True: one set of attention weights for both modalities (SuperGlue)
+        "canonical_yaw": False,  # True: 3D positions in their yaw-canonical frame (canonical.py; not the paper's)
     }
 
     def __init__(self, conf: dict[str, Any] | None = None) -> None:
@@ -113,7 +115,7 @@ class AttentionExchanger(LearnedComponent, Exchanger):
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """d2 [M2 x D], d3 [M3 x D], uv [M2 x 2] normalised pixels, xyz [M3 x 3] -> updated d2, d3."""
         d2 = d2.float() + self.pe2d(uv)
-        d3 = d3.float() + self.pe3d(normalize_points(xyz, xyz))
+        d3 = d3.float() + self.pe3d(normalize_points(xyz, xyz, self.conf["canonical_yaw"]))
         for block in self.blocks:
             d2, d3 = block(d2, d3)
         return d2, d3

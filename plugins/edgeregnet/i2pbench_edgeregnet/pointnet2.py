@@ -23,6 +23,8 @@ from torch import nn
 
 from i2pbench.api import Encoder3D, Frame, Keypoints3D, LearnedComponent, StageError
 
+from .canonical import canonical_yaw
+
 
 def farthest_point_sampling(xyz: torch.Tensor, n: int, start: int = 0) -> torch.Tensor:
     """xyz [N x 3] -> [n] indices, each the point farthest from those chosen before (first = start)."""
@@ -80,10 +82,14 @@ def shared_mlp(cin: int, widths: tuple[int, ...], groups: int) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-def normalize_points(xyz: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
-    """xyz [M x 3] minus the centroid of reference [N x 3], divided by reference's largest distance to it."""
+def normalize_points(xyz: torch.Tensor, reference: torch.Tensor, canonical: bool = False) -> torch.Tensor:
+    """xyz [M x 3] minus the centroid of reference [N x 3], divided by reference's largest distance to it; with
+    `canonical`, also turned into reference's yaw-canonical frame (canonical.py)."""
     centre = reference.mean(0)
     scale = (reference - centre).norm(dim=1).max().clamp(min=1e-6)
+    if canonical:
+        centre, R = canonical_yaw(reference)
+        return (xyz - centre) @ R.t() / scale
     return (xyz - centre) / scale
 
 
@@ -122,6 +128,7 @@ class PointNet2Encoder(LearnedComponent, Encoder3D):
         "head_mlp": (256,),  # hidden widths on [interpolated, xyz, reflectance] at the edge points, then Linear to D
         "groups": 8,  # GroupNorm groups in the shared MLPs
         "normalize_descriptors": True,  # L2-normalise outputs, so both modalities enter the exchanger at one scale
+        "canonical_yaw": False,  # True: the cloud in its yaw-canonical frame (canonical.py; not the paper's)
     }
 
     def __init__(self, conf: dict[str, Any] | None = None) -> None:
@@ -155,7 +162,9 @@ class PointNet2Encoder(LearnedComponent, Encoder3D):
 
     def forward(self, cloud: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
         """cloud [N x 4], edge points [M x 4] (xyz, reflectance; LiDAR frame) -> descriptors [M x D]."""
-        xyz, kxyz = normalize_points(cloud[:, :3], cloud[:, :3]), normalize_points(edges[:, :3], cloud[:, :3])
+        canonical = self.conf["canonical_yaw"]
+        xyz = normalize_points(cloud[:, :3], cloud[:, :3], canonical)
+        kxyz = normalize_points(edges[:, :3], cloud[:, :3], canonical)
         xyz1, f1 = self.sa1(xyz, cloud[:, 3:])
         xyz2, f2 = self.sa2(xyz1, f1)
         up = torch.cat([three_nn_interpolate(xyz1, xyz2, f2), f1], 1)

@@ -1,0 +1,29 @@
+"""A yaw-canonical frame for LiDAR points: an input normalisation that makes the encoders blind to the protocol's
+random yaw and planar translation. Our addition for CPU-trainability, not the paper's (off in its configs).
+
+The benchmark moves every scan by a random rotation about z and a translation in x, y. The paper's encoders learn
+invariance to that from augmentation alone, which takes far more steps than a CPU gives. Instead, points can be
+expressed in a frame built from their own geometry: origin at the centroid, x along the principal axis of the
+horizontal spread (a street's direction), its sign fixed so the third moment along it is positive, y = z cross x,
+z kept. The centroid, the principal axis and the moment all move with the points under any rotation about z and any
+translation, so the canonical coordinates are the same whatever the random transform was (up to float rounding, and
+except where the spread is isotropic and the axis ill-defined). Nothing from the pose or the ground truth is used.
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+def canonical_yaw(reference: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """reference [N x 3] -> (centre [3], R [3 x 3]) with canonical = (xyz - centre) @ R.T, R a rotation about z."""
+    centre = reference.mean(0)
+    planar = (reference[:, :2] - centre[:2]).double()
+    _, vectors = torch.linalg.eigh(planar.t() @ planar)  # ascending eigenvalues: the last vector is the major axis
+    axis = vectors[:, -1]
+    if ((planar @ axis) ** 3).sum() < 0:
+        axis = -axis
+    x, y = axis.to(reference.dtype), torch.stack([-axis[1], axis[0]]).to(reference.dtype)
+    zero = reference.new_zeros(1)
+    R = torch.stack([torch.cat([x, zero]), torch.cat([y, zero]), reference.new_tensor([0.0, 0.0, 1.0])])
+    return centre, R
