@@ -122,7 +122,8 @@ def moved(cloud: torch.Tensor, yaw: float, tx: float, ty: float) -> torch.Tensor
 def test_canonical_frame_ignores_the_protocols_yaw_and_planar_translation(yaw, tx, ty):
     cloud = skewed_cloud()
     other = moved(cloud, yaw, tx, ty)
-    torch.testing.assert_close(normalize_points(other, other, True), normalize_points(cloud, cloud, True), atol=1e-5, rtol=0)
+    canonical = normalize_points(other, other, canonical=True)
+    torch.testing.assert_close(canonical, normalize_points(cloud, cloud, canonical=True), atol=1e-5, rtol=0)
     assert not torch.allclose(normalize_points(other, other), normalize_points(cloud, cloud), atol=1e-2)
 
 
