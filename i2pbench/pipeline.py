@@ -165,8 +165,9 @@ class Pipeline:
             )
 
     def _run_stages(
-        self, frame: Frame, timings: dict[str, float], counts: dict[str, int], current: list[str]
+        self, frame: Frame, timings: dict[str, float], counts: dict[str, Any], current: list[str]
     ) -> PoseEstimate:
+        """Run the stages, filling `counts` with keypoint and match counts and the matched pairs' coordinates."""
         kept: dict[str, Any] = {}
         with torch.inference_mode():
             for kind, result in self._stages(frame, timings, current):

@@ -15,15 +15,13 @@ from __future__ import annotations
 import torch
 
 
-def canonical_yaw(reference: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """reference [N x 3] -> (centre [3], R [3 x 3]) with canonical = (xyz - centre) @ R.T, R a rotation about z."""
-    centre = reference.mean(0)
-    planar = (reference[:, :2] - centre[:2]).double()
+def canonical_yaw(offsets: torch.Tensor) -> torch.Tensor:
+    """offsets [N x 3] from the centroid -> R [3 x 3], a rotation about z: canonical = offsets @ R.T."""
+    planar = offsets[:, :2].double()
     _, vectors = torch.linalg.eigh(planar.t() @ planar)  # ascending eigenvalues: the last vector is the major axis
     axis = vectors[:, -1]
     if ((planar @ axis) ** 3).sum() < 0:
         axis = -axis
-    x, y = axis.to(reference.dtype), torch.stack([-axis[1], axis[0]]).to(reference.dtype)
-    zero = reference.new_zeros(1)
-    R = torch.stack([torch.cat([x, zero]), torch.cat([y, zero]), reference.new_tensor([0.0, 0.0, 1.0])])
-    return centre, R
+    x, y = axis.to(offsets.dtype), torch.stack([-axis[1], axis[0]]).to(offsets.dtype)
+    zero = offsets.new_zeros(1)
+    return torch.stack([torch.cat([x, zero]), torch.cat([y, zero]), offsets.new_tensor([0.0, 0.0, 1.0])])

@@ -86,10 +86,10 @@ def normalize_points(xyz: torch.Tensor, reference: torch.Tensor, canonical: bool
     """xyz [M x 3] minus the centroid of reference [N x 3], divided by reference's largest distance to it; with
     `canonical`, also turned into reference's yaw-canonical frame (canonical.py)."""
     centre = reference.mean(0)
-    scale = (reference - centre).norm(dim=1).max().clamp(min=1e-6)
+    offsets = reference - centre
+    scale = offsets.norm(dim=1).max().clamp(min=1e-6)
     if canonical:
-        centre, R = canonical_yaw(reference)
-        return (xyz - centre) @ R.t() / scale
+        return (xyz - centre) @ canonical_yaw(offsets).t() / scale
     return (xyz - centre) / scale
 
 
@@ -162,9 +162,8 @@ class PointNet2Encoder(LearnedComponent, Encoder3D):
 
     def forward(self, cloud: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
         """cloud [N x 4], edge points [M x 4] (xyz, reflectance; LiDAR frame) -> descriptors [M x D]."""
-        canonical = self.conf["canonical_yaw"]
-        xyz = normalize_points(cloud[:, :3], cloud[:, :3], canonical)
-        kxyz = normalize_points(edges[:, :3], cloud[:, :3], canonical)
+        both = normalize_points(torch.cat([cloud[:, :3], edges[:, :3]]), cloud[:, :3], self.conf["canonical_yaw"])
+        xyz, kxyz = both[: len(cloud)], both[len(cloud) :]
         xyz1, f1 = self.sa1(xyz, cloud[:, 3:])
         xyz2, f2 = self.sa2(xyz1, f1)
         up = torch.cat([three_nn_interpolate(xyz1, xyz2, f2), f1], 1)
