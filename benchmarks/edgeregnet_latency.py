@@ -80,7 +80,7 @@ def measure(label: str, conf: dict[str, dict], n_keypoints: int, repeat: int) ->
             "exchanger": median_seconds(lambda: ex(frame, kp2d, kp3d, Features(d2, d3)), repeat),
             "matcher": median_seconds(lambda: matcher(frame, kp2d, kp3d, features), repeat),
         }
-        cloud = torch.rand(e3.conf["num_points"], 3)
+        cloud = torch.rand(1, e3.conf["num_points"], 3)
         fps = median_seconds(lambda: farthest_point_sampling(cloud, e3.conf["sa1"]["npoint"]), repeat)
     for kind, s in seconds.items():
         print(f"   {kind:10s} {s:7.3f} s")

@@ -7,8 +7,9 @@ from i2pbench_edgeregnet.attention import normalize_pixels
 from i2pbench_edgeregnet.pointnet2 import (
     ball_query,
     farthest_point_sampling,
+    interpolate,
     normalize_points,
-    three_nn_interpolate,
+    three_nn,
 )
 from i2pbench_edgeregnet.superpoint import sample_descriptors
 
@@ -46,14 +47,22 @@ def numpy_fps(xyz: np.ndarray, n: int, start: int = 0) -> np.ndarray:
 
 def test_fps_matches_brute_force():
     xyz = np.random.default_rng(0).normal(size=(200, 3)).astype(np.float32)
-    index = farthest_point_sampling(torch.from_numpy(xyz), 50, start=7).numpy()
+    index = farthest_point_sampling(torch.from_numpy(xyz)[None], 50, start=7)[0].numpy()
     np.testing.assert_array_equal(index, numpy_fps(xyz, 50, start=7))
     assert len(set(index.tolist())) == 50
 
 
-def test_fps_of_more_points_than_exist_takes_them_all():
-    xyz = torch.rand(5, 3)
-    assert sorted(farthest_point_sampling(xyz, 9).tolist()) == [0, 1, 2, 3, 4]
+def test_batched_fps_equals_one_frame_at_a_time():
+    xyz = torch.from_numpy(np.random.default_rng(2).normal(size=(3, 400, 3)).astype(np.float32))
+    batched = farthest_point_sampling(xyz, 60)
+    for b in range(3):
+        assert torch.equal(batched[b], farthest_point_sampling(xyz[b : b + 1], 60)[0])
+        np.testing.assert_array_equal(batched[b].numpy(), numpy_fps(xyz[b].numpy(), 60))
+
+
+def test_fps_of_more_points_than_exist_takes_them_all_then_repeats_the_start():
+    index = farthest_point_sampling(torch.rand(1, 5, 3), 9)[0].tolist()
+    assert sorted(index[:5]) == [0, 1, 2, 3, 4] and index[5:] == [0, 0, 0, 0]
 
 
 def brute_ball_query(xyz: np.ndarray, centres: np.ndarray, radius: float, nsample: int) -> np.ndarray:
@@ -68,13 +77,13 @@ def brute_ball_query(xyz: np.ndarray, centres: np.ndarray, radius: float, nsampl
 def test_ball_query_matches_brute_force(nsample):
     xyz = np.random.default_rng(1).uniform(-1, 1, (300, 3)).astype(np.float32)
     centres = xyz[::7]
-    index = ball_query(torch.from_numpy(xyz), torch.from_numpy(centres), 0.35, nsample, chunk=8).numpy()
-    np.testing.assert_array_equal(index, brute_ball_query(xyz, centres, 0.35, nsample))
+    index = ball_query(torch.from_numpy(xyz)[None], torch.from_numpy(centres)[None], 0.35, nsample, chunk=8)[0]
+    np.testing.assert_array_equal(index.numpy(), brute_ball_query(xyz, centres, 0.35, nsample))
 
 
 def test_ball_query_pads_when_the_cloud_is_smaller_than_nsample():
     xyz = torch.tensor([[0.0, 0, 0], [0.05, 0, 0], [5.0, 0, 0]])
-    assert ball_query(xyz, xyz[:1], 0.1, 4).tolist() == [[0, 1, 0, 0]]
+    assert ball_query(xyz[None], xyz[None, :1], 0.1, 4).tolist() == [[[0, 1, 0, 0]]]
 
 
 def test_three_nn_interpolation_by_hand():
@@ -83,7 +92,10 @@ def test_three_nn_interpolation_by_hand():
     # distances 0.5, 1.5, sqrt(100.25); weights 1/d normalised
     w = np.array([1 / 0.5, 1 / 1.5, 1 / np.sqrt(100.25)])
     expected = (w * [1.0, 3.0, 100.0]).sum() / w.sum()
-    out = three_nn_interpolate(torch.tensor([[0.5, 0, 0], [2.0, 0, 0]]), known, feats)
+    queries = torch.tensor([[[0.5, 0, 0], [2.0, 0, 0]]])
+    nearest = three_nn(queries, known[None])
+    assert sorted(nearest[0, 0].tolist()) == [0, 1, 2]
+    out = interpolate(queries, known[None], feats[None], nearest)[0]
     assert out[0, 0].item() == pytest.approx(expected, rel=1e-5)
     assert out[1, 0].item() == pytest.approx(3.0, rel=1e-5)  # a query on a known point takes its feature
 

@@ -27,50 +27,68 @@ from .canonical import canonical_yaw
 
 
 def farthest_point_sampling(xyz: torch.Tensor, n: int, start: int = 0) -> torch.Tensor:
-    """xyz [N x 3] -> [n] indices, each the point farthest from those chosen before (first = start)."""
-    num = xyz.shape[0]
-    n = min(n, num)
-    index = torch.empty(n, dtype=torch.long, device=xyz.device)
-    dist = torch.full((num,), float("inf"), device=xyz.device, dtype=xyz.dtype)
-    x, y, z = xyz.t().contiguous()
+    """xyz [B x N x 3] -> [B x n] indices, each the point farthest from those chosen before (first = start).
+
+    Batched over frames and free of host syncs (the chosen point is gathered by a device index, never `.item()`), so
+    on CUDA the loop only queues kernels. With n > N the indices repeat `start` once every point is taken.
+    """
+    batch, num, _ = xyz.shape
+    index = torch.empty(batch, n, dtype=torch.long, device=xyz.device)
+    dist = torch.full((batch, num), float("inf"), device=xyz.device, dtype=xyz.dtype)
+    x, y, z = xyz.permute(2, 0, 1).contiguous()
     d, t = torch.empty_like(x), torch.empty_like(x)
-    farthest = torch.tensor(start, device=xyz.device)
-    for i in range(n):  # the loop is inherent; every step is vectorised over the N points, in place to save allocations
-        index[i] = farthest
-        c = xyz[farthest]
-        torch.sub(x, c[0], out=d).square_()
-        d.addcmul_(torch.sub(y, c[1], out=t), t)
-        d.addcmul_(torch.sub(z, c[2], out=t), t)
+    farthest = torch.full((batch,), start, dtype=torch.long, device=xyz.device)
+    rows = torch.arange(batch, device=xyz.device)
+    for i in range(n):  # the loop is inherent; every step is vectorised over B x N, in place to save allocations
+        index[:, i] = farthest
+        cx, cy, cz = x[rows, farthest, None], y[rows, farthest, None], z[rows, farthest, None]
+        torch.sub(x, cx, out=d).square_()
+        d.addcmul_(torch.sub(y, cy, out=t), t)
+        d.addcmul_(torch.sub(z, cz, out=t), t)
         torch.minimum(dist, d, out=dist)
-        farthest = torch.argmax(dist)
+        farthest = torch.argmax(dist, dim=1)
     return index
 
 
 def ball_query(xyz: torch.Tensor, centres: torch.Tensor, radius: float, nsample: int, chunk: int = 128) -> torch.Tensor:
-    """first `nsample` indices (ascending) of xyz [N x 3] within radius of each centre [C x 3] -> [C x nsample].
+    """first `nsample` indices (ascending) of xyz [B x N x 3] within radius of each centre [B x C x 3] -> [B x C x k].
 
     balls with fewer points repeat their first index; a centre taken from xyz always finds itself.
     """
-    num = xyz.shape[0]
+    num = xyz.shape[1]
     k = min(nsample, num)
     order = torch.arange(num, device=xyz.device, dtype=xyz.dtype)  # exact in float up to 2^24 points
-    sq = (xyz * xyz).sum(1)
-    out = [centres.new_zeros((0, k), dtype=torch.long)]
-    for part in centres.split(chunk):  # chunks bound the [chunk x N] distance matrix (small chunks stay in cache)
-        dist2 = torch.addmm(sq, part, xyz.t(), alpha=-2).add_((part * part).sum(1, keepdim=True))
+    sq = (xyz * xyz).sum(-1)[:, None, :]
+    xyz_t = xyz.transpose(1, 2)
+    out = []
+    for part in centres.split(chunk, dim=1):  # chunks bound the [B x chunk x N] distance matrix
+        dist2 = torch.baddbmm(sq, part, xyz_t, alpha=-2).add_((part * part).sum(-1, keepdim=True))
         key = dist2.gt_(radius**2).mul_(num).add_(order)  # index inside the ball, index + N outside
-        first = key.topk(k, dim=1, largest=False).values.long()
-        out.append(torch.where(first >= num, first[:, :1], first))
-    index = torch.cat(out)
-    return index if k == nsample else torch.cat([index, index[:, :1].expand(-1, nsample - k)], 1)
+        first = key.topk(k, dim=-1, largest=False).values.long()
+        out.append(torch.where(first >= num, first[..., :1], first))
+    index = torch.cat(out, 1) if out else centres.new_zeros((len(xyz), 0, k), dtype=torch.long)
+    return index if k == nsample else torch.cat([index, index[..., :1].expand(-1, -1, nsample - k)], -1)
 
 
-def three_nn_interpolate(xyz: torch.Tensor, known: torch.Tensor, feats: torch.Tensor) -> torch.Tensor:
-    """inverse-distance mean of feats [K x C] at the 3 nearest of known [K x 3] for each xyz [M x 3] -> [M x C]."""
-    dist, index = torch.cdist(xyz, known).topk(min(3, known.shape[0]), dim=1, largest=False)
+def gather(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """rows of values [B x N x C] at index [B x ...] -> [B x ... x C]."""
+    flat = index.reshape(len(index), -1)
+    picked = values.gather(1, flat[..., None].expand(-1, -1, values.shape[-1]))
+    return picked.reshape(*index.shape, values.shape[-1])
+
+
+def three_nn(xyz: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
+    """indices of the 3 nearest of known [B x K x 3] for each xyz [B x M x 3] -> [B x M x 3] (fewer if K < 3)."""
+    return torch.cdist(xyz, known).topk(min(3, known.shape[1]), dim=-1, largest=False).indices
+
+
+def interpolate(xyz: torch.Tensor, known: torch.Tensor, feats: torch.Tensor, nearest: torch.Tensor) -> torch.Tensor:
+    """inverse-distance mean of feats [B x K x C] at the `nearest` [B x M x 3] of known [B x K x 3] -> [B x M x C]."""
+    dist = (xyz[:, :, None] - gather(known, nearest)).norm(dim=-1)  # exact differences: cdist's matmul form loses
+    # digits to cancellation for close pairs, the very pairs whose inverse distance dominates the weights
     weight = 1.0 / dist.clamp(min=1e-8)
-    weight = weight / weight.sum(1, keepdim=True)
-    return (feats[index] * weight[..., None]).sum(1)
+    weight = weight / weight.sum(-1, keepdim=True)
+    return (gather(feats, nearest) * weight[..., None]).sum(-2)
 
 
 def shared_mlp(cin: int, widths: tuple[int, ...], groups: int) -> nn.Sequential:
@@ -97,22 +115,49 @@ def frame_seed(frame: Frame) -> int:
     return zlib.crc32(f"{frame.dataset}/{frame.frame_id}".encode())
 
 
+GROUPING_KEYS = ("fps1", "ball1", "fps2", "ball2", "up", "edge")
+
+
+def group(xyz: torch.Tensor, kxyz: torch.Tensor, conf: dict[str, Any]) -> dict[str, torch.Tensor]:
+    """which points each layer takes, for a normalised cloud xyz [B x N x 3] and edge points kxyz [B x M x 3]:
+    FPS centroids and balls of both set abstractions, and the 3-NN of the two decoding steps (all index tensors).
+
+    Every index depends only on distances between points, so a rigid motion of the scan (the protocol's transform)
+    leaves it unchanged: training computes it once per frame.
+    """
+    sa1, sa2 = conf["sa1"], conf["sa2"]
+    with torch.no_grad():
+        fps1 = farthest_point_sampling(xyz, sa1["npoint"])
+        c1 = gather(xyz, fps1)
+        fps2 = farthest_point_sampling(c1, sa2["npoint"])
+        c2 = gather(c1, fps2)
+        return {
+            "fps1": fps1,
+            "ball1": ball_query(xyz, c1, sa1["radius"], sa1["nsample"]),
+            "fps2": fps2,
+            "ball2": ball_query(c1, c2, sa2["radius"], sa2["nsample"]),
+            "up": three_nn(c1, c2),
+            "edge": three_nn(kxyz, c1),
+        }
+
+
 class SetAbstraction(nn.Module):
     """FPS centroids, ball query, shared MLP on [offset / radius, features], max over each ball."""
 
     def __init__(self, npoint: int, radius: float, nsample: int, cin: int, mlp: tuple[int, ...], groups: int) -> None:
         super().__init__()
-        self.npoint, self.radius, self.nsample = npoint, radius, nsample
+        self.radius = radius  # npoint and nsample steer `group`, which runs before the network
         self.mlp = shared_mlp(cin + 3, tuple(mlp), groups)
 
-    def forward(self, xyz: torch.Tensor, feats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """xyz [N x 3], feats [N x C] -> centroids [S x 3], features [S x C']."""
-        with torch.no_grad():
-            centres = xyz[farthest_point_sampling(xyz, self.npoint)]
-            group = ball_query(xyz, centres, self.radius, self.nsample)
-        offsets = (xyz[group] - centres[:, None]) / self.radius
-        x = torch.cat([offsets, feats[group]], -1).permute(2, 0, 1)[None]  # [1 x C x S x nsample]
-        return centres, self.mlp(x).amax(-1)[0].t()
+    def forward(
+        self, xyz: torch.Tensor, feats: torch.Tensor, centres: torch.Tensor, balls: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """xyz [B x N x 3], feats [B x N x C], centre indices [B x S], balls [B x S x k] -> centroids [B x S x 3],
+        features [B x S x C']."""
+        centroids = gather(xyz, centres)
+        offsets = (gather(xyz, balls) - centroids[:, :, None]) / self.radius
+        x = torch.cat([offsets, gather(feats, balls)], -1).permute(0, 3, 1, 2)  # [B x C x S x k]
+        return centroids, self.mlp(x).amax(-1).transpose(1, 2)
 
 
 class PointNet2Encoder(LearnedComponent, Encoder3D):
@@ -145,10 +190,8 @@ class PointNet2Encoder(LearnedComponent, Encoder3D):
             layers += [nn.Linear(cin, cout), nn.LayerNorm(cout), nn.ReLU(inplace=True)]
         self.head = nn.Sequential(*layers, nn.Linear(widths[-1], c["descriptor_dim"]))
 
-    def __call__(self, frame: Frame, kp3d: Keypoints3D) -> torch.Tensor:
-        device = next(self.parameters()).device
-        if not np.isfinite(kp3d.xyz).all() or not np.isfinite(kp3d.reflectance).all():
-            raise StageError(self.label, "3D keypoints with non-finite coordinates or reflectance (corrupt scan?)")
+    def cloud(self, frame: Frame) -> np.ndarray:
+        """the frame's finite returns, cut to `num_points` by a subset seeded by the frame id -> [N x 4]."""
         points = frame.points
         finite = np.isfinite(points).all(1)
         if not finite.all():  # a corrupt return must not poison the normalisation; clean scans keep their subset
@@ -156,18 +199,51 @@ class PointNet2Encoder(LearnedComponent, Encoder3D):
         if len(points) > self.conf["num_points"]:
             rng = np.random.default_rng(frame_seed(frame))
             points = points[rng.choice(len(points), self.conf["num_points"], replace=False)]
-        cloud = torch.from_numpy(np.asarray(points, np.float32)).to(device)
-        edges = np.concatenate([kp3d.xyz, kp3d.reflectance[:, None]], 1).astype(np.float32)
-        return nn.Module.__call__(self, cloud, torch.from_numpy(edges).to(device)).float()
+        return np.asarray(points, np.float32)
 
-    def forward(self, cloud: torch.Tensor, edges: torch.Tensor) -> torch.Tensor:
-        """cloud [N x 4], edge points [M x 4] (xyz, reflectance; LiDAR frame) -> descriptors [M x D]."""
+    def prepare(
+        self, frame: Frame, kp3d: Keypoints3D, device: torch.device | str = "cpu", cache: dict | None = None
+    ) -> dict[str, torch.Tensor]:
+        """one frame's network inputs: normalised cloud and edge points (+ reflectance) and their grouping.
+
+        `cache` (a per-frame dict kept by the caller) holds the grouping across calls: it does not depend on the
+        protocol's transform (see `group`).
+        """
+        if not np.isfinite(kp3d.xyz).all() or not np.isfinite(kp3d.reflectance).all():
+            raise StageError(self.label, "3D keypoints with non-finite coordinates or reflectance (corrupt scan?)")
+        cloud = torch.from_numpy(self.cloud(frame)).to(device)
+        edges = torch.from_numpy(np.c_[kp3d.xyz, kp3d.reflectance].astype(np.float32)).to(device)
         both = normalize_points(torch.cat([cloud[:, :3], edges[:, :3]]), cloud[:, :3], self.conf["canonical_yaw"])
-        xyz, kxyz = both[: len(cloud)], both[len(cloud) :]
-        xyz1, f1 = self.sa1(xyz, cloud[:, 3:])
-        xyz2, f2 = self.sa2(xyz1, f1)
-        up = torch.cat([three_nn_interpolate(xyz1, xyz2, f2), f1], 1)
-        f1 = self.fp(up.t()[None, :, :, None])[0, :, :, 0].t()
-        x = torch.cat([three_nn_interpolate(kxyz, xyz1, f1), kxyz, edges[:, 3:]], 1)
+        inputs = {
+            "xyz": both[: len(cloud)],
+            "reflectance": cloud[:, 3:],
+            "edge_xyz": both[len(cloud) :],
+            "edge_reflectance": edges[:, 3:],
+        }
+        grouping = cache.get("grouping") if cache is not None else None
+        if grouping is None or len(grouping["edge"]) != len(edges):
+            grouping = {k: v[0] for k, v in group(inputs["xyz"][None], inputs["edge_xyz"][None], self.conf).items()}
+            if cache is not None:
+                cache["grouping"] = {k: v.cpu() for k, v in grouping.items()}
+        return {**inputs, **{k: v.to(device) for k, v in grouping.items()}}
+
+    def __call__(self, frame: Frame, kp3d: Keypoints3D) -> torch.Tensor:
+        device = next(self.parameters()).device
+        inputs = {k: v[None] for k, v in self.prepare(frame, kp3d, device).items()}
+        return nn.Module.__call__(self, inputs)[0].float()
+
+    def forward(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
+        """a batch of `prepare`d frames (each tensor with a leading B) -> edge-point descriptors [B x M x D].
+
+        xyz [B x N x 3], reflectance [B x N x 1], edge_xyz [B x M x 3], edge_reflectance [B x M x 1] and the grouping
+        indices; rows past a frame's own counts are padding, never gathered by its indices.
+        """
+        g = inputs
+        xyz1, f1 = self.sa1(g["xyz"], g["reflectance"], g["fps1"], g["ball1"])
+        xyz2, f2 = self.sa2(xyz1, f1, g["fps2"], g["ball2"])
+        up = torch.cat([interpolate(xyz1, xyz2, f2, g["up"]), f1], -1)
+        f1 = self.fp(up.transpose(1, 2)[..., None])[..., 0].transpose(1, 2)
+        kxyz = g["edge_xyz"]
+        x = torch.cat([interpolate(kxyz, xyz1, f1, g["edge"]), kxyz, g["edge_reflectance"]], -1)
         desc = self.head(x)
         return F.normalize(desc, dim=-1) if self.conf["normalize_descriptors"] else desc
