@@ -7,9 +7,12 @@ import sys
 import time
 
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 import toy_plugin
 
+from i2pbench import leaderboard
 from i2pbench.pipeline import Combination
 from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
@@ -19,6 +22,11 @@ from i2pbench.runs.runner import frame_key, prepare, run_grid
 from i2pbench.runs.store import ResultsStore
 
 BASE = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
+# The columns a result must hold, with values of their types; tests add what they check.
+RESULT = {
+    **dict.fromkeys(["dataset", "split", "combination", "weights", "status", "failed_component"], ""),
+    **dict.fromkeys(["rte_m", "rre_deg", "geodesic_deg", "model_size_mb", "t_total_s"], 0.0),
+}
 
 
 @pytest.fixture
@@ -48,7 +56,7 @@ def _run(registry, store, **kwargs):
 
 def test_put_then_get_round_trips_a_record(tmp_path):
     store = ResultsStore(tmp_path)
-    record = {"frame_id": "a", "rte_m": 0.5, "T_pred": [1.0, 0.0], "error": "", "t_encoder2d_s": float("nan")}
+    record = {**RESULT, "frame_id": "a", "rte_m": 0.5, "T_pred": [1.0, 0.0], "error": "", "t_encoder2d_s": float("nan")}
     store.put("k", record)
     got = store.get("k")
     assert got["frame_id"] == "a" and got["rte_m"] == 0.5 and got["T_pred"] == [1.0, 0.0]
@@ -84,9 +92,54 @@ def test_a_truncated_result_is_reported_by_path_and_recomputed(registry, tmp_pat
     assert store.get(path.stem) is not None
 
 
+NOT_RESULTS = {
+    "a leaderboard": (pa.table({"combination": ["x"], "frames": [3], "acc": [50.0]}), "no column dataset, split, "),
+    "a mistyped column": (pa.Table.from_pylist([{**RESULT, "frame_id": "c", "rte_m": "0.5"}]), "rte_m is string"),
+    "two rows": (pa.Table.from_pylist([{**RESULT, "frame_id": "c"}] * 2), "2 rows, not 1"),
+}
+
+
+@pytest.mark.parametrize("name", NOT_RESULTS)
+def test_a_readable_file_that_is_not_a_result_is_named_and_set_aside(registry, tmp_path, capsys, name):
+    table, problem = NOT_RESULTS[name]
+    store = ResultsStore(tmp_path)
+    _run(registry, store)
+    stray = store.path("stray")
+    pq.write_table(table, stray)
+    records = store.load()
+    assert sorted(records["frame_id"]) == ["a", "bad", "c"]  # no NaN row beside the three frames
+    assert list(leaderboard.build(records)["frames"]) == [3]
+    err = capsys.readouterr().err
+    assert f"malformed result {stray}" in err and problem in err
+    assert stray.with_name("stray.parquet.corrupt").is_file() and not stray.exists()
+
+
+def test_a_frame_whose_file_is_not_a_result_is_recomputed(registry, tmp_path, counted):
+    store = ResultsStore(tmp_path)
+    _run(registry, store)
+    job = prepare(registry, [Combination(BASE)])[0]
+    path = store.path(frame_key(registry.dataset("toy")("test"), "c", job, Protocol()))
+    pq.write_table(NOT_RESULTS["a leaderboard"][0], path)
+    records = _run(registry, store)
+    assert counted == ["a", "bad", "c", "c"]
+    assert records.set_index("frame_id").loc["c", "status"] == "ok" and store.get(path.stem) is not None
+
+
+def test_a_new_version_of_a_slot_replaces_the_older_ones(tmp_path):
+    """Keys are `<slot>-<version>`: a frame recomputed on changed files leaves one result, not two."""
+    first = ResultsStore(tmp_path)
+    for key in ("s1-v1", "s2-v1", "s1"):  # "s1": a key from before versions, with no separator
+        first.put(key, {**RESULT, "frame_id": key})
+    second = ResultsStore(tmp_path)  # another run: lists the stored versions on its first put
+    second.put("s1-v2", {**RESULT, "frame_id": "s1 again"})
+    assert sorted(p.stem for p in second.frames_dir.glob("*.parquet")) == ["s1-v2", "s2-v1"]
+    second.put("s1-v3", {**RESULT, "frame_id": "s1 once more"})
+    assert sorted(second.load()["frame_id"]) == ["s1 once more", "s2-v1"]
+
+
 def test_stray_temp_files_are_ignored_and_dead_writers_temps_swept(tmp_path):
     store = ResultsStore(tmp_path)
-    store.put("k", {"frame_id": "a"})
+    store.put("k", {**RESULT, "frame_id": "a"})
     dead_pid = 2**22 + 12345  # above the default pid_max: no such process
     dead = tmp_path / "frames" / f".k2.{dead_pid}.tmp"
     live = tmp_path / "frames" / f".k3.{os.getpid()}.tmp"
@@ -141,12 +194,12 @@ def test_untrained_rows_start_from_the_same_weights_in_every_run(registry):
     assert all((first[name] == second[name]).all() for name in first)
 
 
-WRITER = """
+WRITER = f"""
 import sys
 from i2pbench.runs.store import ResultsStore
 store = ResultsStore(sys.argv[1])
 for i in range(1000):
-    store.put(f"k{i:04d}", {"frame_id": str(i), "T_pred": [float(i)] * 2_000_000})
+    store.put(f"k{{i:04d}}", {{**{RESULT!r}, "frame_id": str(i), "T_pred": [float(i)] * 2_000_000}})
 """
 
 

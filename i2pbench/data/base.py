@@ -51,3 +51,30 @@ class Dataset:
     def identity(self) -> dict[str, Any]:
         """What identifies this data for caching and leaderboards."""
         return {"dataset": self.name, "split": self.split, "root": str(self.conf.get("root") or "")}
+
+    def frame_files(self, frame_id: str) -> list[Path]:
+        """The files `load(frame_id)` reads, so a cached result is dropped once one of them changes.
+
+        The default, none, keys a frame's results by its id alone, as for a dataset that cannot list its files.
+        """
+        return []
+
+    def fingerprint(self, frame_id: str) -> list[list[int] | None]:
+        """The state of the frame's files, part of its cache key; override for data that lives outside files."""
+        return [file_stamp(path) for path in self.frame_files(frame_id)]
+
+
+def file_stamp(path: Path) -> list[int] | None:
+    """[size, mtime_ns, ctime_ns] of a file, None when it is absent.
+
+    Stats, not a content hash: hashing reads every frame (~3 MB a KITTI frame, ~4 ms at 725 MB/s from the page
+    cache), which would turn a fully cached rerun of a large split into minutes of I/O. ctime catches what size and
+    mtime miss: a same-size repair written back with its old mtime (cp -p, rsync -a) still moves ctime, which no
+    user call can set.
+    """
+    try:
+        st = path.stat()
+    except OSError:  # absent or unreadable: load() reports it, and the frame is recomputed once that changes
+        return None
+    return [st.st_size, st.st_mtime_ns, st.st_ctime_ns]
+

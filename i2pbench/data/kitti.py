@@ -187,3 +187,13 @@ class KittiOdometry(Dataset):
 
     def identity(self) -> dict[str, Any]:
         return {**super().identity(), "camera": self.conf["camera"], "sequences": self.conf["sequences"]}
+
+    @staticmethod
+    def layout_files(sequence_dir: Path, stem: str, camera: int = 2) -> list[Path]:
+        """The files `read_frame` reads for frame `stem` of a sequence: scan, image and the sequence's calibration."""
+        scan, image = sequence_dir / "velodyne" / f"{stem}.bin", sequence_dir / f"image_{camera}" / f"{stem}.png"
+        return [scan, image, sequence_dir / "calib.txt"]
+
+    def frame_files(self, frame_id: str) -> list[Path]:
+        sequence, _, stem = frame_id.partition("/")
+        return self.layout_files(self.sequences_dir / sequence, stem, self.conf["camera"])

@@ -199,3 +199,14 @@ class NuScenes(Dataset):
     def identity(self) -> dict[str, Any]:
         keys = ("version", "cameras", "exclude_night", "ego_radius_m")
         return {**super().identity(), **{k: self.conf[k] for k in keys}}
+
+    def frame_files(self, frame_id: str) -> list[Path]:
+        """Sweep, image and the four tables the frame's records come from; a changed table recomputes every frame,
+        as it does not say which of its records moved."""
+        tables = self.root / self.conf["version"]
+        files = [tables / f"{name}.json" for name in ("sample", "sample_data", "calibrated_sensor", "ego_pose")]
+        try:
+            lidar, cam = self._sample_data(frame_id)
+        except DataError:  # not in the tables: load() records the failure
+            return files
+        return [self.root / lidar["filename"], self.root / cam["filename"], *files]

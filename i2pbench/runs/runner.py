@@ -26,7 +26,7 @@ from ..plugins import Registry
 from ..protocol import Protocol
 from ..types import Frame, PoseEstimate
 from ..weights import apply_checkpoint, select_checkpoint
-from .store import ResultsStore, cache_key
+from .store import ResultsStore, versioned_key
 
 Progress = Callable[[int], None]
 UNTRAINED_SEED = 0
@@ -77,15 +77,15 @@ def _build(registry: Registry, combination: Combination) -> Pipeline:
 
 
 def frame_key(dataset: Dataset, frame_id: str, job: Job, protocol: Protocol) -> str:
-    return cache_key(
-        {
-            "data": dataset.identity(),
-            "frame": frame_id,
-            "stages": job.stages(),
-            "weights": job.weights,
-            "protocol": protocol.card(),
-        }
-    )
+    """What is computed, versioned by the state of the frame's files: a repaired scan is recomputed, not reused."""
+    parts = {
+        "data": dataset.identity(),
+        "frame": frame_id,
+        "stages": job.stages(),
+        "weights": job.weights,
+        "protocol": protocol.card(),
+    }
+    return versioned_key(parts, dataset.fingerprint(frame_id))
 
 
 def run_job(

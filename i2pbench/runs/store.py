@@ -1,11 +1,16 @@
 """Per-frame results, one small Parquet file per finished frame, written atomically.
 
-Each file is named by the frame's cache key (a hash of dataset, frame, component configs, weights and protocol) and
-appears only once complete: it is written to a temp file named after the writing process, then renamed over the
-final name. A run killed at any point (SIGKILL included) therefore leaves finished frames intact and at most one
+Each file is named by the frame's cache key, `<slot>-<version>`: the slot hashes what is computed (dataset, frame,
+component configs, weights and protocol), the version the state of the frame's files. A frame whose files changed
+gets a new key, so it is recomputed, and storing the new version deletes the old one: the store never holds two
+results of one slot.
+
+A file appears only once complete: it is written to a temp file named after the writing process, then renamed over
+the final name. A run killed at any point (SIGKILL included) therefore leaves finished frames intact and at most one
 stray temp file, which readers ignore and the next store opening removes once its writer is dead. No fsync: a killed
 process loses nothing the kernel already holds; only a power cut could, and then the unreadable file is detected on
-read, reported by path, set aside and recomputed.
+read, reported by path, set aside and recomputed. So is a readable file that is not a result (missing or mistyped
+columns, not one row): it would otherwise become a bogus leaderboard row.
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ import hashlib
 import json
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -23,10 +29,51 @@ import pyarrow.parquet as pq
 
 TEMP_SUFFIX = ".tmp"
 CORRUPT_SUFFIX = ".corrupt"
+VERSION_SEP = "-"
+
+
+def _text(t: pa.DataType) -> bool:
+    return pa.types.is_string(t) or pa.types.is_large_string(t)
+
+
+def _number(t: pa.DataType) -> bool:
+    return pa.types.is_floating(t) or pa.types.is_integer(t)
+
+
+# The columns every reader of the store relies on (the leaderboard groups and scores by them), each with its type.
+REQUIRED: dict[str, Callable[[pa.DataType], bool]] = {
+    **dict.fromkeys(("dataset", "split", "frame_id", "combination", "weights", "status", "failed_component"), _text),
+    **dict.fromkeys(("rte_m", "rre_deg", "geodesic_deg", "model_size_mb", "t_total_s"), _number),
+}
+
+
+class SchemaError(ValueError):
+    """A readable Parquet file that is not a frame's result."""
 
 
 def cache_key(parts: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:24]
+
+
+def versioned_key(parts: dict[str, Any], version: Any) -> str:
+    """`<slot>-<version>`: `parts` say what is computed, `version` (e.g. file stamps) what it was computed from."""
+    return f"{cache_key(parts)}{VERSION_SEP}{cache_key({'version': version})[:12]}"
+
+
+def check_result(table: pa.Table) -> None:
+    """Raise SchemaError naming what makes a table other than one frame's result: missing or mistyped columns, or
+    a row count other than one."""
+    schema = table.schema
+    missing = [name for name in REQUIRED if name not in schema.names]
+    wrong = [
+        f"{name} is {schema.field(name).type}"
+        for name, ok in REQUIRED.items()
+        if name in schema.names and not ok(schema.field(name).type)
+    ]
+    rows = [] if table.num_rows == 1 else [f"{table.num_rows} rows, not 1"]
+    if missing or wrong or rows:
+        problems = ([f"no column {', '.join(missing)}"] if missing else []) + wrong + rows
+        raise SchemaError(f"not a frame result: {'; '.join(problems)}")
 
 
 class ResultsStore:
@@ -36,6 +83,7 @@ class ResultsStore:
         self.root = Path(root)
         self.frames_dir = self.root / "frames"
         self.frames_dir.mkdir(parents=True, exist_ok=True)
+        self._versions: dict[str, set[str]] | None = None  # slot -> stored keys, listed on the first put
         self._sweep_dead_temps()
 
     def path(self, key: str) -> Path:
@@ -50,14 +98,32 @@ class ResultsStore:
             os.replace(tmp, self.path(key))
         finally:
             tmp.unlink(missing_ok=True)
+        self._supersede(key)
+
+    def _supersede(self, key: str) -> None:
+        """Delete the other versions of the key's slot (results of data that has changed since), so that readers of
+        the whole store (`load()`, reports) see one result per slot."""
+        slot, sep, _ = key.partition(VERSION_SEP)
+        if not sep:
+            return
+        if self._versions is None:  # listed once per store: a directory scan per frame would grow with the store
+            self._versions = {}
+            for path in self.frames_dir.glob("*.parquet"):
+                self._versions.setdefault(path.stem.partition(VERSION_SEP)[0], set()).add(path.stem)
+        for old in self._versions.get(slot, set()) - {key}:
+            self.path(old).unlink(missing_ok=True)
+        self._versions[slot] = {key}
 
     def get(self, key: str) -> dict[str, Any] | None:
-        """The stored record, or None when absent or unreadable (then reported and set aside for recomputing)."""
+        """The stored record, or None when absent, unreadable or not a result (then reported and set aside for
+        recomputing)."""
         path = self.path(key)
         if not path.is_file():
             return None
         try:
-            return pq.read_table(path).to_pylist()[0]
+            table = pq.read_table(path)
+            check_result(table)
+            return table.to_pylist()[0]
         except FileNotFoundError:  # removed between the check and the read
             return None
         except Exception as exc:  # pyarrow raises several types for a damaged file; any of them means recompute
@@ -72,8 +138,9 @@ class ResultsStore:
 
     def _set_aside(self, path: Path, exc: Exception) -> None:
         aside = path.with_name(path.name + CORRUPT_SUFFIX)
+        what = "malformed" if isinstance(exc, SchemaError) else "unreadable"
         print(
-            f"i2pbench: warning: unreadable result {path} ({type(exc).__name__}: {exc}); "
+            f"i2pbench: warning: {what} result {path} ({type(exc).__name__}: {exc}); "
             f"moved to {aside.name}, it will be recomputed",
             file=sys.stderr,
         )

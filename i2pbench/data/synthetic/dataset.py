@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 from ...errors import DataError
 from ...types import SensorFrame
 from ..base import Dataset
-from ..kitti import read_frame, sequence_stems
+from ..kitti import KittiOdometry, read_frame, sequence_stems
 from .version import GENERATOR_VERSION
 
 SPLIT_SEQUENCES = {"train": "00", "val": "01", "test": "02"}
@@ -121,6 +121,11 @@ class SyntheticStreets(Dataset):
                 f"'{SPLIT_SEQUENCES[self.split]}/NNNNNN'"
             )
         return read_frame(self.sequence_dir(), stem, 2, self.name, self.match_radius_px)
+
+    def frame_files(self, frame_id: str) -> list[Path]:
+        """The KITTI-layout files of the frame, without generating the split (the run that loads it will)."""
+        sequence, _, stem = frame_id.partition("/")
+        return KittiOdometry.layout_files(self.root / "sequences" / sequence, stem)
 
     def identity(self) -> dict[str, Any]:
         """Generator version, seed and frame count fix the data; the folder it sits in does not."""
