@@ -27,14 +27,14 @@ def test_sampling_at_cell_centres_returns_the_cell():
     fmap = coordinate_map(5, 7)
     uv = torch.tensor([[3.5, 3.5], [8 * 6 + 3.5, 8 * 4 + 3.5], [8 * 2 + 3.5, 8 * 1 + 3.5]])
     expected = torch.tensor([[0.0, 0.0], [6.0, 4.0], [2.0, 1.0]])
-    torch.testing.assert_close(sample_descriptors(fmap, uv, 8), expected)
+    torch.testing.assert_close(sample_descriptors(fmap, uv[None], 8)[0], expected)
 
 
 def test_sampling_between_centres_is_linear_and_clamped_at_the_border():
     fmap = coordinate_map(5, 7)
     uv = torch.tensor([[12.0, 20.0], [0.0, 0.0], [60.0, 39.0]])  # interior; left of first centre; right/below last
     expected = torch.tensor([[(12 - 3.5) / 8, (20 - 3.5) / 8], [0.0, 0.0], [6.0, 4.0]])
-    torch.testing.assert_close(sample_descriptors(fmap, uv, 8), expected)
+    torch.testing.assert_close(sample_descriptors(fmap, uv[None], 8)[0], expected)
 
 
 def numpy_fps(xyz: np.ndarray, n: int, start: int = 0) -> np.ndarray:
@@ -144,6 +144,6 @@ def test_a_half_size_image_samples_like_stride_16():
     fmap = coordinate_map(3, 4)
     uv = torch.tensor([[7.5, 7.5], [16 * 3 + 7.5, 16 * 2 + 7.5], [20.0, 30.0]])
     expected = torch.tensor([[0.0, 0.0], [3.0, 2.0], [(20 - 7.5) / 16, (30 - 7.5) / 16]])
-    torch.testing.assert_close(sample_descriptors(fmap, uv, 16), expected)
+    torch.testing.assert_close(sample_descriptors(fmap, uv[None], 16)[0], expected)
     u_resized = (uv[:, :1] + 0.5) * 0.5 - 0.5
-    torch.testing.assert_close(sample_descriptors(fmap, uv, 16)[:, 0], (u_resized[:, 0] - 3.5) / 8)
+    torch.testing.assert_close(sample_descriptors(fmap, uv[None], 16)[0, :, 0], (u_resized[:, 0] - 3.5) / 8)

@@ -22,12 +22,26 @@ P = torch.tensor(
 )  # = [[1/32, 1/12, 1/96], [3/64, 1/32, 1/16]]
 
 
+def one(*tensors):
+    """a batch of one frame."""
+    return [t[None] for t in tensors]
+
+
 def test_log_assignment_is_eq_10():
-    torch.testing.assert_close(log_assignment(SIM, Z2D, Z3D).exp(), P)
+    torch.testing.assert_close(log_assignment(*one(SIM, Z2D, Z3D))[0].exp(), P)
+
+
+def test_padded_rows_and_columns_take_no_part_in_the_assignment():
+    sim = torch.full((1, 3, 5), 7.0)  # padding of any value
+    sim[0, :2, :3] = SIM
+    z2d, z3d = torch.zeros(1, 3), torch.zeros(1, 5)
+    z2d[0, :2], z3d[0, :3] = Z2D, Z3D
+    masks = torch.tensor([[True, True, False]]), torch.tensor([[True, True, True, False, False]])
+    torch.testing.assert_close(log_assignment(sim, z2d, z3d, *masks)[0, :2, :3].exp(), P)
 
 
 def test_mutual_maxima_and_threshold():
-    log_p = log_assignment(SIM, Z2D, Z3D)
+    log_p = log_assignment(*one(SIM, Z2D, Z3D))[0]
     i2d, i3d, score = mutual_matches(log_p, 0.0)
     assert list(zip(i2d.tolist(), i3d.tolist(), strict=True)) == [(0, 1), (1, 2)]  # (1, 0) is a column max only
     torch.testing.assert_close(score, torch.tensor([1 / 12, 1 / 16]))
@@ -36,18 +50,20 @@ def test_mutual_maxima_and_threshold():
 
 
 def test_masked_points_never_match():
-    log_p = log_assignment(SIM, Z2D, Z3D).masked_fill(torch.tensor([[False, True, True]]), float("-inf"))
+    log_p = log_assignment(*one(SIM, Z2D, Z3D))[0].masked_fill(torch.tensor([[False, True, True]]), float("-inf"))
     i2d, i3d, _ = mutual_matches(log_p, 0.0)
     assert (i2d.tolist(), i3d.tolist()) == ([1], [0])
 
 
 def test_loss_by_hand():
-    log_p = log_assignment(SIM, Z2D, Z3D)
-    z_fov = torch.tensor([math.log(4), 0.0, -math.log(4)])  # fov scores 0.8, 0.5, 0.2
-    pairs = (torch.tensor([0, 1]), torch.tensor([1, 2]))
-    matchable = (torch.tensor([True, True]), torch.tensor([False, True, True]))
-    in_fov = torch.tensor([True, True, False])
-    total, terms = edgeregnet_loss(log_p, Z2D, Z3D, z_fov, pairs, matchable, in_fov, weights=(1.0, 2.0, 0.5))
+    log_p, z2d, z3d = one(SIM, Z2D, Z3D)
+    log_p = log_assignment(log_p, z2d, z3d)
+    z_fov = torch.tensor([[math.log(4), 0.0, -math.log(4)]])  # fov scores 0.8, 0.5, 0.2
+    pairs = (torch.tensor([[0, 1]]), torch.tensor([[1, 2]]), torch.tensor([[True, True]]))
+    matchable = (torch.tensor([[True, True]]), torch.tensor([[False, True, True]]))
+    in_fov = torch.tensor([[True, True, False]])
+    masks = (torch.ones(1, 2, dtype=torch.bool), torch.ones(1, 3, dtype=torch.bool))
+    total, terms = edgeregnet_loss(log_p, z2d, z3d, z_fov, pairs, matchable, in_fov, masks, weights=(1.0, 2.0, 0.5))
 
     l_fov = -(math.log(0.8) + math.log(0.5) + math.log(0.8)) / 3  # = 0.3797
     l_sigma = -(math.log(1 / 2) + math.log(3 / 4)) / 2 - (math.log(1 / 2) + math.log(1 / 2) + math.log(1 / 4)) / 3
@@ -58,13 +74,17 @@ def test_loss_by_hand():
 
 
 def test_no_true_pair_gives_zero_p_term_and_still_trains_the_heads():
-    sim, z2d, z3d = SIM.clone().requires_grad_(), Z2D.clone().requires_grad_(), Z3D.clone().requires_grad_()
-    z_fov = torch.zeros(3, requires_grad=True)
-    no_pairs = (torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=torch.long))
-    matchable = (torch.zeros(2, dtype=torch.bool), torch.zeros(3, dtype=torch.bool))
-    total, terms = edgeregnet_loss(
-        log_assignment(sim, z2d, z3d), z2d, z3d, z_fov, no_pairs, matchable, torch.ones(3, dtype=torch.bool)
+    sim, z2d, z3d = (t[None].clone().requires_grad_() for t in (SIM, Z2D, Z3D))
+    z_fov = torch.zeros(1, 3, requires_grad=True)
+    no_pairs = (
+        torch.zeros(1, 0, dtype=torch.long),
+        torch.zeros(1, 0, dtype=torch.long),
+        torch.zeros(1, 0, dtype=torch.bool),
     )
+    matchable = (torch.zeros(1, 2, dtype=torch.bool), torch.zeros(1, 3, dtype=torch.bool))
+    masks = (torch.ones(1, 2, dtype=torch.bool), torch.ones(1, 3, dtype=torch.bool))
+    in_fov = torch.ones(1, 3, dtype=torch.bool)
+    total, terms = edgeregnet_loss(log_assignment(sim, z2d, z3d), z2d, z3d, z_fov, no_pairs, matchable, in_fov, masks)
     assert terms["P"] == 0.0 and terms["pairs"] == 0.0
     total.backward()
     assert z_fov.grad.abs().sum() > 0 and z2d.grad.abs().sum() > 0

@@ -40,6 +40,14 @@ def mlp(widths: tuple[int, ...]) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
+def key_mask(mask: torch.Tensor | None) -> torch.Tensor | None:
+    """SDPA's boolean mask [B x 1 x 1 x M] from keypoint masks [B x M]; a frame with no key attends to its padding
+    (its outputs are padding too), so no row of softmax is empty."""
+    if mask is None:
+        return None
+    return (mask | ~mask.any(-1, keepdim=True))[:, None, None, :]
+
+
 class AttentionalUpdate(nn.Module):
     """x + MLP([x, MultiHeadAttention(x, source)])."""
 
@@ -49,11 +57,11 @@ class AttentionalUpdate(nn.Module):
         self.q, self.kv, self.out = nn.Linear(dim, dim), nn.Linear(dim, 2 * dim), nn.Linear(dim, dim)
         self.ffn = nn.Sequential(nn.Linear(2 * dim, 2 * dim), nn.LayerNorm(2 * dim), nn.GELU(), nn.Linear(2 * dim, dim))
 
-    def forward(self, x: torch.Tensor, source: torch.Tensor) -> torch.Tensor:
-        """x [N x D], source [M x D] -> [N x D]."""
-        q = self.q(x).unflatten(-1, (self.heads, -1)).transpose(0, 1)  # [H x N x D/H]
-        k, v = self.kv(source).unflatten(-1, (2, self.heads, -1)).permute(1, 2, 0, 3)  # 2 x [H x M x D/H]
-        message = F.scaled_dot_product_attention(q[None], k[None], v[None])[0].transpose(0, 1).flatten(1)
+    def forward(self, x: torch.Tensor, source: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """x [B x N x D], source [B x M x D], mask: SDPA's [B x 1 x 1 x M] over source or None -> [B x N x D]."""
+        q = self.q(x).unflatten(-1, (self.heads, -1)).transpose(1, 2)  # [B x H x N x D/H]
+        k, v = self.kv(source).unflatten(-1, (2, self.heads, -1)).permute(2, 0, 3, 1, 4)  # 2 x [B x H x M x D/H]
+        message = F.scaled_dot_product_attention(q, k, v, attn_mask=mask).transpose(1, 2).flatten(2)
         return x + self.ffn(torch.cat([x, self.out(message)], -1))
 
 
@@ -66,10 +74,12 @@ class ExchangeBlock(nn.Module):
         self.self3d = self.self2d if share_weights else AttentionalUpdate(dim, heads)
         self.cross3d = self.cross2d if share_weights else AttentionalUpdate(dim, heads)
 
-    def forward(self, d2: torch.Tensor, d3: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """d2 [M2 x D], d3 [M3 x D] -> same shapes."""
-        d2, d3 = self.self2d(d2, d2), self.self3d(d3, d3)
-        return self.cross2d(d2, d3), self.cross3d(d3, d2)
+    def forward(
+        self, d2: torch.Tensor, d3: torch.Tensor, mask2d: torch.Tensor | None, mask3d: torch.Tensor | None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """d2 [B x M2 x D], d3 [B x M3 x D], SDPA key masks (see `key_mask`) -> same shapes."""
+        d2, d3 = self.self2d(d2, d2, mask2d), self.self3d(d3, d3, mask3d)
+        return self.cross2d(d2, d3, mask3d), self.cross3d(d3, d2, mask2d)
 
 
 class AttentionExchanger(LearnedComponent, Exchanger):
@@ -97,25 +107,44 @@ class AttentionExchanger(LearnedComponent, Exchanger):
     def check_compatible(self, upstream: Mapping[str, Component]) -> str | None:
         return descriptor_dim_mismatch(self, upstream)
 
+    def prepare(
+        self,
+        frame: Frame,
+        kp2d: Keypoints2D,
+        kp3d: Keypoints3D,
+        device: torch.device | str = "cpu",
+        cache: dict | None = None,
+    ) -> dict[str, torch.Tensor]:
+        """one frame's positions: normalised pixels [M2 x 2] and normalised (canonical) edge points [M3 x 3]."""
+        uv = torch.from_numpy(np.asarray(kp2d.uv, np.float32)).to(device)
+        xyz = torch.from_numpy(np.asarray(kp3d.xyz, np.float32)).to(device)
+        if len(xyz):
+            xyz = normalize_points(xyz, xyz, self.conf["canonical_yaw"])
+        return {"uv": normalize_pixels(uv, frame.image_size), "xyz": xyz}
+
     def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Features:
         if features.desc2d is None or features.desc3d is None:
             raise StageError(self.label, "needs descriptors on both sides (an encoder2d and an encoder3d)")
         if len(kp2d) == 0 or len(kp3d) == 0:  # nothing to attend to; the matcher will find no match
             return features
         device = next(self.parameters()).device
-        uv = torch.from_numpy(np.asarray(kp2d.uv, np.float32)).to(device)
-        xyz = torch.from_numpy(np.asarray(kp3d.xyz, np.float32)).to(device)
-        d2, d3 = nn.Module.__call__(
-            self, features.desc2d.to(device), features.desc3d.to(device), normalize_pixels(uv, frame.image_size), xyz
-        )
-        return Features(desc2d=d2.float(), desc3d=d3.float())
+        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, kp3d, device).items()}
+        d2, d3 = nn.Module.__call__(self, inputs, features.desc2d.to(device)[None], features.desc3d.to(device)[None])
+        return Features(desc2d=d2[0].float(), desc3d=d3[0].float())
 
     def forward(
-        self, d2: torch.Tensor, d3: torch.Tensor, uv: torch.Tensor, xyz: torch.Tensor
+        self,
+        inputs: dict[str, torch.Tensor],
+        d2: torch.Tensor,
+        d3: torch.Tensor,
+        mask2d: torch.Tensor | None = None,
+        mask3d: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """d2 [M2 x D], d3 [M3 x D], uv [M2 x 2] normalised pixels, xyz [M3 x 3] -> updated d2, d3."""
-        d2 = d2.float() + self.pe2d(uv)
-        d3 = d3.float() + self.pe3d(normalize_points(xyz, xyz, self.conf["canonical_yaw"]))
+        """`prepare`d positions (uv [B x M2 x 2], xyz [B x M3 x 3]), d2 [B x M2 x D], d3 [B x M3 x D], keypoint
+        masks [B x M2], [B x M3] (None: no padding) -> updated d2, d3."""
+        d2 = d2.float() + self.pe2d(inputs["uv"])
+        d3 = d3.float() + self.pe3d(inputs["xyz"])
+        m2, m3 = key_mask(mask2d), key_mask(mask3d)
         for block in self.blocks:
-            d2, d3 = block(d2, d3)
+            d2, d3 = block(d2, d3, m2, m3)
         return d2, d3

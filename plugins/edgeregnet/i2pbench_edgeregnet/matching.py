@@ -88,18 +88,22 @@ class LightGlueMatcher(LearnedComponent, Matcher):
     def check_compatible(self, upstream: Mapping[str, Component]) -> str | None:
         return descriptor_dim_mismatch(self, upstream)
 
-    def forward(self, d2: torch.Tensor, d3: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """d2 [M2 x D], d3 [M3 x D] -> log P [M2 x M3], matchability logits ([M2], [M3]), fov logits [M3]."""
+    def forward(
+        self, d2: torch.Tensor, d3: torch.Tensor, mask2d: torch.Tensor | None = None, mask3d: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, ...]:
+        """d2 [B x M2 x D], d3 [B x M3 x D], keypoint masks or None -> log P [B x M2 x M3], matchability logits
+        ([B x M2], [B x M3]), fov logits [B x M3]."""
         d2, d3 = d2.float(), d3.float()
-        sim = self.proj2d(d2) @ self.proj3d(d3).t() / self.conf["descriptor_dim"] ** 0.5
-        z2d, z3d = self.matchability2d(d2)[:, 0], self.matchability3d(d3)[:, 0]
-        return log_assignment(sim, z2d, z3d), z2d, z3d, self.fov(d3)[:, 0]
+        sim = self.proj2d(d2) @ self.proj3d(d3).transpose(1, 2) / self.conf["descriptor_dim"] ** 0.5
+        z2d, z3d = self.matchability2d(d2)[..., 0], self.matchability3d(d3)[..., 0]
+        return log_assignment(sim, z2d, z3d, mask2d, mask3d), z2d, z3d, self.fov(d3)[..., 0]
 
     def _run(self, features: Features) -> tuple[torch.Tensor, ...]:
         if features.desc2d is None or features.desc3d is None:
             raise StageError(self.label, "needs descriptors on both sides (an encoder2d and an encoder3d)")
         device = next(self.parameters()).device
-        return nn.Module.__call__(self, features.desc2d.to(device), features.desc3d.to(device))
+        outputs = nn.Module.__call__(self, features.desc2d.to(device)[None], features.desc3d.to(device)[None])
+        return tuple(t[0] for t in outputs)
 
     @torch.no_grad()
     def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Matches:
@@ -109,20 +113,56 @@ class LightGlueMatcher(LearnedComponent, Matcher):
         i2d, i3d, score = mutual_matches(log_p, self.conf["filter_threshold"])
         return Matches(i2d.cpu().numpy(), i3d.cpu().numpy(), score.float().cpu().numpy())
 
-    def loss(
-        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features
-    ) -> tuple[torch.Tensor, dict[str, float]]:
-        """eq. (15) on this frame; frame must carry T_gt."""
-        log_p, z2d, z3d, z_fov = self._run(features)
+    def prepare(
+        self,
+        frame: Frame,
+        kp2d: Keypoints2D,
+        kp3d: Keypoints3D,
+        device: torch.device | str = "cpu",
+        cache: dict | None = None,
+    ) -> dict[str, torch.Tensor]:
+        """one frame's supervision (frame must carry T_gt): true pairs [K], their count, matchable and in-fov flags."""
         gt = ground_truth_matches(frame, kp2d, kp3d, radius_px=self.conf["eps_c"])
-        dev, w = log_p.device, self.conf["weights"]
+        arrays = {
+            "pairs2d": gt.index2d,
+            "pairs3d": gt.index3d,
+            "num_pairs": np.int64(len(gt)),
+            "matchable2d": gt.matchable2d,
+            "matchable3d": gt.matchable3d,
+            "in_fov3d": gt.in_fov3d,
+        }
+        return {k: to_device(np.asarray(v), device) for k, v in arrays.items()}
+
+    def batch_loss(
+        self,
+        inputs: dict[str, torch.Tensor],
+        features: Features,
+        mask2d: torch.Tensor,
+        mask3d: torch.Tensor,
+    ) -> tuple[torch.Tensor, dict[str, float]]:
+        """eq. (15), the mean over a batch of `prepare`d frames; descriptors [B x M2 x D], [B x M3 x D]."""
+        log_p, z2d, z3d, z_fov = nn.Module.__call__(self, features.desc2d, features.desc3d, mask2d, mask3d)
+        k = inputs["pairs2d"].shape[1]
+        valid = torch.arange(k, device=log_p.device)[None] < inputs["num_pairs"][:, None]
+        w = self.conf["weights"]
         return edgeregnet_loss(
             log_p,
             z2d,
             z3d,
             z_fov,
-            pairs=(to_device(gt.index2d, dev), to_device(gt.index3d, dev)),
-            matchable=(to_device(gt.matchable2d, dev), to_device(gt.matchable3d, dev)),
-            in_fov=to_device(gt.in_fov3d, dev),
+            pairs=(inputs["pairs2d"], inputs["pairs3d"], valid),
+            matchable=(inputs["matchable2d"], inputs["matchable3d"]),
+            in_fov=inputs["in_fov3d"],
+            masks=(mask2d, mask3d),
             weights=(w["fov"], w["sigma"], w["P"]),
         )
+
+    def loss(
+        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features
+    ) -> tuple[torch.Tensor, dict[str, float]]:
+        """eq. (15) on this frame; frame must carry T_gt."""
+        device = next(self.parameters()).device
+        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, kp3d, device).items()}
+        batched = Features(features.desc2d.to(device)[None], features.desc3d.to(device)[None])
+        ones = [torch.ones(1, n, dtype=torch.bool, device=device) for n in (len(kp2d), len(kp3d))]
+        return self.batch_loss(inputs, batched, *ones)

@@ -21,25 +21,37 @@ from i2pbench.api import Encoder2D, Frame, Keypoints2D, LearnedComponent
 GREY_WEIGHTS = (0.299, 0.587, 0.114)  # ITU-R BT.601, as cv2.cvtColor(RGB2GRAY)
 
 
-def to_grey(image: np.ndarray, device: torch.device) -> torch.Tensor:
-    """rgb uint8 [H x W x 3] -> grey float [1 x 1 x H x W] in [0, 1]."""
+def to_grey(image: np.ndarray, device: torch.device | str = "cpu") -> torch.Tensor:
+    """rgb uint8 [H x W x 3] -> grey float [1 x H x W] in [0, 1]."""
     rgb = torch.from_numpy(np.ascontiguousarray(image)).to(device=device, dtype=torch.float32)
     grey = rgb @ torch.tensor(GREY_WEIGHTS, device=device) / 255.0
-    return grey[None, None]
+    return grey[None]
 
 
 def pixel_to_grid(uv: torch.Tensor, size: tuple[int, int], stride: float) -> torch.Tensor:
-    """pixel coordinates [M x 2] -> grid_sample coordinates [M x 2] on a (Wc, Hc) map (align_corners=True)."""
+    """pixel coordinates [... x 2] -> grid_sample coordinates [... x 2] on a (Wc, Hc) map (align_corners=True)."""
     cells = (uv - (stride - 1) / 2) / stride
     extent = torch.tensor([max(size[0] - 1, 1), max(size[1] - 1, 1)], device=uv.device, dtype=uv.dtype)
     return cells / extent * 2 - 1
 
 
 def sample_descriptors(fmap: torch.Tensor, uv: torch.Tensor, stride: float) -> torch.Tensor:
-    """bilinear lookup of fmap [1 x D x Hc x Wc] at pixels uv [M x 2] -> [M x D]."""
+    """bilinear lookup of fmap [B x D x Hc x Wc] at pixels uv [B x M x 2] -> [B x M x D]."""
     grid = pixel_to_grid(uv, (fmap.shape[-1], fmap.shape[-2]), stride)
-    out = F.grid_sample(fmap, grid[None, None], mode="bilinear", padding_mode="border", align_corners=True)
-    return out[0, :, 0].t()
+    out = F.grid_sample(fmap, grid[:, None], mode="bilinear", padding_mode="border", align_corners=True)
+    return out[:, :, 0].transpose(1, 2)
+
+
+def normalize_images(grey: torch.Tensor, size: torch.Tensor) -> torch.Tensor:
+    """zero mean, unit std (unbiased) per image over its own [H x W] of a padded batch [B x 1 x H' x W']; padding 0."""
+    rows = torch.arange(grey.shape[-2], device=grey.device)
+    cols = torch.arange(grey.shape[-1], device=grey.device)
+    valid = (rows[None, :, None] < size[:, :1, None]) & (cols[None, None, :] < size[:, 1:, None])
+    valid = valid[:, None].to(grey.dtype)
+    count = valid.sum((1, 2, 3), keepdim=True)
+    mean = (grey * valid).sum((1, 2, 3), keepdim=True) / count
+    var = ((grey - mean) ** 2 * valid).sum((1, 2, 3), keepdim=True) / (count - 1).clamp(min=1)
+    return (grey - mean) / var.sqrt().clamp(min=1e-3) * valid
 
 
 def conv(cin: int, cout: int, kernel: int = 3) -> nn.Conv2d:
@@ -73,18 +85,29 @@ class SuperPointEncoder(LearnedComponent, Encoder2D):
         head = self.conf["head_channels"]
         self.head = nn.Sequential(conv(c4, head), nn.ReLU(inplace=True), conv(head, self.conf["descriptor_dim"], 1))
 
+    def prepare(
+        self, frame: Frame, kp2d: Keypoints2D, device: torch.device | str = "cpu", cache: dict | None = None
+    ) -> dict[str, torch.Tensor]:
+        """one frame's network inputs: grey image [1 x H x W], its size [2] (H, W) and the edge pixels [M x 2]."""
+        grey = to_grey(frame.image, device)
+        uv = torch.from_numpy(np.asarray(kp2d.uv, np.float32)).to(device)
+        return {"grey": grey, "size": torch.tensor(grey.shape[1:], device=device), "uv": uv}
+
     def __call__(self, frame: Frame, kp2d: Keypoints2D) -> torch.Tensor:
         device = next(self.parameters()).device
-        uv = torch.from_numpy(np.asarray(kp2d.uv, np.float32)).to(device)
-        return nn.Module.__call__(self, to_grey(frame.image, device), uv).float()
+        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, device).items()}
+        return nn.Module.__call__(self, inputs)[0].float()
 
-    def forward(self, grey: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
-        """grey [1 x 1 x H x W] in [0, 1], uv [M x 2] pixels -> descriptors [M x D]."""
-        scale = self.conf["image_scale"]
+    def forward(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
+        """a batch of `prepare`d frames: grey [B x 1 x H x W] in [0, 1] (zero-padded to the largest), size [B x 2],
+        uv [B x M x 2] pixels -> descriptors [B x M x D]. Frames of one size are exact; a smaller frame in a batch of
+        larger ones sees padding instead of its border beyond the first layer's receptive field."""
+        grey, size, scale = inputs["grey"], inputs["size"], self.conf["image_scale"]
         if scale != 1.0:
             grey = F.interpolate(grey, scale_factor=scale, mode="bilinear", antialias=True)
+            size = (size * scale).floor().long()
         if self.conf["normalize_image"]:
-            grey = (grey - grey.mean()) / grey.std().clamp(min=1e-3)
+            grey = normalize_images(grey, size)
         fmap = self.head(self.backbone(grey))
-        desc = sample_descriptors(fmap, uv, self.stride / scale)
+        desc = sample_descriptors(fmap, inputs["uv"], self.stride / scale)
         return F.normalize(desc, dim=-1) if self.conf["normalize_descriptors"] else desc
