@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -10,9 +12,11 @@ import pytest
 
 from i2pbench.data import nuscenes as nus
 from i2pbench.data.nuscenes import CAMERAS, NuScenes, lidar_to_camera, read_sweep, record_matrix
+from i2pbench.data.nuscenes_dataroot import build_dataroot as build
 from i2pbench.errors import DataError
 from i2pbench.geometry import in_image, invert, project
 from i2pbench.plugins import build_registry
+from i2pbench.runs.store import ResultsStore
 
 RECORDS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nuscenes_records"
 SCENE_DIR = RECORDS / "scene-0916_sample00_b5989651"
@@ -25,45 +29,12 @@ def _records() -> dict:
     return json.loads((SCENE_DIR / "calib_records.json").read_text())
 
 
-def _no_dangling(record: dict) -> dict:
-    # one keyframe of a 41-sample scene: prev/next would point at records we do not have
-    return {**record, "prev": "", "next": ""}
-
-
 def build_dataroot(root: Path, version: str, description: str | None = None) -> Path:
-    """Write the thirteen devkit tables for the one real keyframe and link its files into samples/."""
-    rec = _records()
-    channels = ["LIDAR_TOP", *CAMERAS]
-    scene = {**rec["scene"], "nbr_samples": 1, "last_sample_token": SAMPLE}
+    """The one real keyframe as a devkit dataroot (the library's builder); `description` rewrites its scene's."""
+    build([RECORDS], root, version)
     if description is not None:
-        scene["description"] = description
-    log = {"token": scene["log_token"], "logfile": "n015-2018-10-08-15-36-50+0800", "vehicle": "n015",
-           "date_captured": "2018-10-08", "location": "singapore-onenorth"}  # fmt: skip
-    sensors = [
-        {"token": rec[c]["calibrated_sensor"]["sensor_token"], "channel": c, "modality": c.split("_")[0].lower()}
-        for c in channels
-    ]
-    tables = {
-        "category": [], "attribute": [], "visibility": [], "instance": [], "sample_annotation": [],
-        "sensor": sensors,
-        "calibrated_sensor": [rec[c]["calibrated_sensor"] for c in channels],
-        "ego_pose": [rec[c]["ego_pose"] for c in channels],
-        "log": [log],
-        "scene": [scene],
-        "sample": [_no_dangling(rec["sample"])],
-        "sample_data": [_no_dangling(rec[c]["sample_data"]) for c in channels],
-        "map": [{"token": "map0", "log_tokens": [log["token"]], "category": "semantic_prior",
-                 "filename": "maps/placeholder.png"}],
-    }  # fmt: skip
-    (root / version).mkdir(parents=True)
-    for name, rows in tables.items():
-        (root / version / f"{name}.json").write_text(json.dumps(rows))
-    (root / "maps").mkdir()
-    (root / "maps" / "placeholder.png").write_bytes(b"")  # the devkit only checks that the map file exists
-    for c in channels:
-        target = root / rec[c]["sample_data"]["filename"]
-        target.parent.mkdir(parents=True, exist_ok=True)
-        target.symlink_to(SCENE_DIR / Path(target).name)
+        scenes = json.loads((root / version / "scene.json").read_text())
+        (root / version / "scene.json").write_text(json.dumps([{**s, "description": description} for s in scenes]))
     return root
 
 
@@ -164,7 +135,7 @@ def test_missing_version_folder_names_the_path(tmp_path):
 
 def test_bad_conf_and_frame_ids(trainval):
     with pytest.raises(DataError, match="needs version 'v1.0-test'"):
-        NuScenes("test", {"root": str(trainval)})
+        NuScenes("test", {"root": str(trainval), "version": "v1.0-trainval"})
     with pytest.raises(DataError, match="unknown cameras"):
         NuScenes("val", {"cameras": ["CAM_TOP"]})
     with pytest.raises(DataError, match="no frame 'nope/CAM_FRONT'"):
@@ -192,3 +163,84 @@ def test_missing_devkit_says_how_to_install(monkeypatch):
 def test_registered_through_the_entry_point(monkeypatch):
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "datasets")
     assert build_registry().dataset("nuscenes") is NuScenes
+
+
+# ---- the version follows the split; a dataroot built from record folders by `i2pbench data nuscenes-dataroot` ----
+
+REAL = RECORDS.parent / "nuscenes_real"
+FIRST, SECOND, LAST = SAMPLE, "ac8b4d49731d43289579f014cb7c97ef", "b4ff30109dd14c89b24789dc5713cf8c"
+
+
+def test_version_follows_the_split_and_cache_identity_is_unchanged(trainval, tmp_path):
+    val = NuScenes("val", {"root": str(trainval)})
+    assert val.conf["version"] == "v1.0-trainval" and val.identity()["version"] == "v1.0-trainval"
+    mini = build_dataroot(tmp_path, "v1.0-mini")
+    assert NuScenes("mini_val", {"root": str(mini)}).frame_ids() == [f"{SAMPLE}/CAM_FRONT"]
+
+
+def test_default_test_split_uses_the_only_version_on_disk_and_says_so(trainval, capsys):
+    dataset = NuScenes("test", {"root": str(trainval)})
+    assert (dataset.split, dataset.conf["version"]) == ("val", "v1.0-trainval")
+    assert f"{trainval} holds v1.0-trainval only (no v1.0-test): using split 'val' instead of 'test'" in (
+        capsys.readouterr().err
+    )
+    assert dataset.frame_ids() == [f"{SAMPLE}/CAM_FRONT"]
+
+
+def test_with_two_versions_on_disk_the_test_split_is_not_guessed(tmp_path):
+    build_dataroot(tmp_path, "v1.0-trainval")
+    build([RECORDS], tmp_path, "v1.0-mini")  # same files, second table folder
+    dataset = NuScenes("test", {"root": str(tmp_path)})
+    assert (dataset.split, dataset.conf["version"]) == ("test", "v1.0-test")
+    with pytest.raises(DataError, match="v1.0-test not found"):
+        dataset.frame_ids()
+
+
+@pytest.fixture(scope="module")
+def real_root(tmp_path_factory) -> Path:
+    if not REAL.is_dir():
+        pytest.skip(f"{REAL} not found")
+    from i2pbench.cli import main
+
+    root = tmp_path_factory.mktemp("dataroot") / "nuscenes"
+    # sample00 is in both sources: given twice, it counts once
+    assert main(["data", "nuscenes-dataroot", "--records", str(RECORDS), *map(str, sorted(REAL.iterdir())),
+                 "--out", str(root)]) == 0  # fmt: skip
+    return root
+
+
+def _table(root: Path, name: str) -> list[dict]:
+    return json.loads((root / "v1.0-trainval" / f"{name}.json").read_text())
+
+
+def test_dataroot_command_writes_the_tables_of_all_record_folders(real_root):
+    sizes = {n: len(_table(real_root, n)) for n in ("sample", "scene", "sample_data", "calibrated_sensor", "sensor")}
+    # 10 keyframes x 7 channels; one rig, so 7 calibrated sensors shared by every keyframe
+    assert sizes == {"sample": 10, "scene": 1, "sample_data": 70, "calibrated_sensor": 7, "sensor": 7}
+    samples = _table(real_root, "sample")
+    assert [s["token"] for s in samples[:2]] == [FIRST, SECOND] and samples[0]["prev"] == ""
+    assert samples[0]["next"] == SECOND and samples[1]["prev"] == FIRST and samples[-1]["next"] == ""
+    (scene,) = _table(real_root, "scene")
+    assert (scene["nbr_samples"], scene["first_sample_token"], scene["last_sample_token"]) == (10, FIRST, LAST)
+    front = real_root / next(d["filename"] for d in _table(real_root, "sample_data") if "CAM_FRONT__" in d["filename"])
+    assert front.is_symlink() and front.resolve() == (SCENE_DIR / front.name).resolve()  # linked, first source wins
+    assert len(NuScenes("val", {"root": str(real_root), "cameras": list(CAMERAS)}).frame_ids()) == 60
+
+
+def test_dataroot_command_refuses_an_existing_version_folder(real_root, capsys):
+    from i2pbench.cli import main
+
+    assert main(["data", "nuscenes-dataroot", "--records", str(RECORDS), "--out", str(real_root)]) == 2
+    assert f"{real_root / 'v1.0-trainval'} already exists" in capsys.readouterr().err
+
+
+def test_run_with_the_default_split_works_on_a_built_dataroot(real_root, tmp_path):
+    cmd = [sys.executable, "-m", "i2pbench.cli", "run", "--matcher", "oracle", "--dataset", "nuscenes",
+           "--data-root", str(real_root), "--frames", "2", "--runs-dir", str(tmp_path / "runs"),
+           "--out", str(tmp_path / "board"), "--threads", "1", "--quiet"]  # fmt: skip
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert "using split 'val' instead of 'test'" in done.stderr
+    records = ResultsStore(tmp_path / "runs" / "nuscenes-val").load()
+    assert len(records) == 2 and (records["status"] == "ok").all()
+    assert (records["rte_m"] < 0.2).all() and (records["rre_deg"] < 1.0).all()  # oracle matches: near exact

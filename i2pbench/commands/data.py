@@ -1,4 +1,8 @@
-"""`i2pbench data synth`: generate the embedded synthetic dataset (KITTI Odometry layout) ahead of time."""
+"""`i2pbench data`: dataset utilities.
+
+`synth` generates the embedded synthetic dataset (KITTI Odometry layout) ahead of time; `nuscenes-dataroot` turns
+nuScenes record folders (as in shared/data) into a devkit dataroot that `--dataset nuscenes` reads.
+"""
 
 from __future__ import annotations
 
@@ -17,13 +21,38 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     synth.add_argument("--seed", type=int, default=0)
     synth.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     synth.add_argument("--quiet", action="store_true", help="no progress bar")
+    nus = data_sub.add_parser("nuscenes-dataroot", help="build a nuScenes devkit dataroot from record folders")
+    nus.add_argument("--records", nargs="+", required=True, metavar="DIR", help="record folders, or folders of them")
+    nus.add_argument("--out", required=True, metavar="ROOT", help="dataroot to write; its version folder must be new")
+    nus.add_argument("--version", default="v1.0-trainval", help="table folder to write (v1.0-test for test scenes)")
+    nus.add_argument("--copy", action="store_true", help="copy the sensor files instead of linking them")
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.data_command == "nuscenes-dataroot":
+        return nuscenes_dataroot(args)
     from ..data.synthetic.dataset import SyntheticStreets, generate
 
     frames = dict(SyntheticStreets.default_conf["frames"])
     frames.update({k: v for k, v in (("train", args.train), ("val", args.val), ("test", args.test)) if v is not None})
     root = generate(args.root, frames["train"], frames["val"], frames["test"], seed=args.seed, workers=args.workers)
     print(f"synthetic dataset ready at {root} ({frames})", file=sys.stderr)
+    return 0
+
+
+def nuscenes_dataroot(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..data.nuscenes import VERSIONS
+    from ..data.nuscenes_dataroot import build_dataroot
+    from ..errors import DataError
+
+    if args.version not in VERSIONS:
+        raise DataError(f"--version {args.version!r}: choose one of {list(VERSIONS)}")
+    sizes = build_dataroot([Path(d) for d in args.records], Path(args.out), args.version, copy=args.copy)
+    print(
+        f"nuScenes dataroot ready at {args.out}: {args.version} with {sizes['sample']} sample(s) of "
+        f"{sizes['scene']} scene(s); use --dataset nuscenes --data-root {args.out}",
+        file=sys.stderr,
+    )
     return 0

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import functools
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
 from ..components import merge_conf
-from ..errors import DataError
+from ..errors import DataError, I2PBenchError
 from ..types import SensorFrame
 
 
@@ -23,6 +24,11 @@ class Dataset:
     splits: ClassVar[tuple[str, ...]] = ("train", "val", "test")
     default_conf: ClassVar[dict[str, Any]] = {"root": None}
     match_radius_px: ClassVar[float] = 3.0  # eps_c for this sensor set-up
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "load" in cls.__dict__:
+            cls.load = _failing_as_data_error(cls.__dict__["load"])  # type: ignore[method-assign]
 
     def __init__(self, split: str, conf: Mapping[str, Any] | None = None) -> None:
         if split not in self.splits:
@@ -78,3 +84,22 @@ def file_stamp(path: Path) -> list[int] | None:
         return None
     return [st.st_size, st.st_mtime_ns, st.st_ctime_ns]
 
+
+def _failing_as_data_error(load: Callable[[Any, str], SensorFrame]) -> Callable[[Any, str], SensorFrame]:
+    """Wrap a subclass's `load` so that any exception becomes a DataError naming the dataset and frame.
+
+    Why here, once: the runner and its workers turn an I2PBenchError from `load` into a failed frame and the CLI
+    into a one-line error, so a reader's own bug (a LinAlgError, a KeyError in a third-party dataset) fails that
+    frame, named, in every caller instead of ending the run with a traceback.
+    """
+
+    @functools.wraps(load)
+    def wrapped(self: Dataset, frame_id: str) -> SensorFrame:
+        try:
+            return load(self, frame_id)
+        except I2PBenchError:
+            raise
+        except Exception as exc:
+            raise DataError(f"dataset {self.name!r} frame {frame_id!r}: {type(exc).__name__}: {exc}") from exc
+
+    return wrapped

@@ -10,12 +10,13 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any, ClassVar
 
-import cv2
 import numpy as np
 
 from ..errors import DataError
 from ..types import SensorFrame
 from .base import Dataset
+from .calibration import check_finite, check_intrinsics, check_rotation
+from .images import read_image
 from .scanlines import recover_rings
 
 SPLIT_SEQUENCES: dict[str, tuple[str, ...]] = {
@@ -25,8 +26,12 @@ SPLIT_SEQUENCES: dict[str, tuple[str, ...]] = {
 
 
 def _parse_calib(path: Path) -> dict[str, np.ndarray]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{path}: not a text calibration file (byte {exc.start} is not UTF-8 text)") from exc
     out: dict[str, np.ndarray] = {}
-    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+    for lineno, line in enumerate(text.splitlines(), 1):
         key, sep, values = line.partition(":")
         if not sep:
             continue
@@ -46,9 +51,12 @@ def _calib_cached(path: str, mtime_ns: int, camera: int) -> tuple[np.ndarray, np
             raise DataError(f"{path}: no {key} line (needed for camera {camera})")
         if calib[key].size != 12:
             raise DataError(f"{path}: {key} has {calib[key].size} values, expected 12 (a 3x4 matrix)")
+        check_finite(calib[key], path, key)
         mats[key] = calib[key].reshape(3, 4)
     P = mats[f"P{camera}"]
     K = P[:, :3].copy()
+    check_intrinsics(K, f"{path}: P{camera}")
+    check_rotation(mats["Tr"][:, :3], path, "the rotation of Tr")
     T = np.eye(4)
     T[:3, :] = mats["Tr"]
     # Pc = K [I | b]: the baseline b of camera c relative to rectified camera 0 goes into the extrinsic.
@@ -79,16 +87,6 @@ def read_points(path: Path) -> np.ndarray:
         )
     points[:, 3] = np.clip(points[:, 3], 0.0, 1.0)
     return points
-
-
-def read_image(path: Path) -> np.ndarray:
-    """[H x W x 3] uint8 RGB."""
-    if not path.is_file():
-        raise DataError(f"{path}: image not found")
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if bgr is None or bgr.size == 0:
-        raise DataError(f"{path}: unreadable or corrupt image")
-    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 def read_frame(

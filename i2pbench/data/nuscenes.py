@@ -7,6 +7,7 @@ are read from the .pcd.bin directly because `LidarPointCloud.from_file` drops th
 
 from __future__ import annotations
 
+import sys
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, ClassVar
@@ -18,7 +19,8 @@ from ..errors import DataError
 from ..geometry import invert
 from ..types import SensorFrame
 from .base import Dataset
-from .kitti import read_image
+from .calibration import check_finite, check_intrinsics
+from .images import read_image
 
 CAMERAS = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_FRONT_LEFT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_BACK_RIGHT")
 VERSIONS = ("v1.0-trainval", "v1.0-mini", "v1.0-test")
@@ -30,32 +32,50 @@ SPLITS: dict[str, tuple[tuple[str, ...], str]] = {
     "mini_train": (("mini_train",), "v1.0-mini"),
     "mini_val": (("mini_val",), "v1.0-mini"),
 }
+EVAL_SPLIT = {"v1.0-trainval": "val", "v1.0-mini": "mini_val", "v1.0-test": "test"}  # what `test` falls back to
 DEVKIT_INSTALL = (
     "pip install --no-deps nuscenes-devkit pyquaternion matplotlib shapely scikit-learn pycocotools descartes fire "
     "cachetools tqdm Pillow"
 )
 
 
-def record_matrix(record: dict[str, Any]) -> np.ndarray:
-    """4x4 pose of a calibrated_sensor or ego_pose record (rotation is a w, x, y, z quaternion)."""
-    w, x, y, z = record["rotation"]
+def record_matrix(record: dict[str, Any], table: str = "record") -> np.ndarray:
+    """4x4 pose of a calibrated_sensor or ego_pose record (rotation is a w, x, y, z quaternion).
+
+    `table` names the file the record came from in errors; a zero quaternion would otherwise leave scipy's
+    ValueError to kill the run.
+    """
+    where = f"{table}: token {record.get('token', '?')}"
+    q = np.asarray(record["rotation"], dtype=np.float64)
+    t = np.asarray(record["translation"], dtype=np.float64)
+    if q.shape != (4,) or t.shape != (3,):
+        raise DataError(f"{where}: rotation must be 4 numbers and translation 3, got {q.shape} and {t.shape}")
+    check_finite(np.r_[q, t], where, "the pose")
+    if np.linalg.norm(q) < 1e-9:
+        raise DataError(f"{where}: the rotation quaternion {q.tolist()} has zero norm")
+    w, x, y, z = q
     T = np.eye(4)
     T[:3, :3] = Rotation.from_quat([x, y, z, w]).as_matrix()
-    T[:3, 3] = record["translation"]
+    T[:3, 3] = t
     return T
 
 
 def lidar_to_camera(
-    lidar_sensor: dict[str, Any], lidar_pose: dict[str, Any], cam_sensor: dict[str, Any], cam_pose: dict[str, Any]
+    lidar_sensor: dict[str, Any],
+    lidar_pose: dict[str, Any],
+    cam_sensor: dict[str, Any],
+    cam_pose: dict[str, Any],
+    tables: Path | None = None,
 ) -> np.ndarray:
-    """T_cam_lidar through lidar -> ego(t_lidar) -> global -> ego(t_cam) -> camera.
+    """T_cam_lidar through lidar -> ego(t_lidar) -> global -> ego(t_cam) -> camera; `tables` names them in errors.
 
     The car moves up to ~1 m between the LiDAR and a camera timestamp, so skipping the two ego poses is not an option.
     """
-    ego_l_from_lidar = record_matrix(lidar_sensor)
-    global_from_ego_l = record_matrix(lidar_pose)
-    global_from_ego_c = record_matrix(cam_pose)
-    ego_c_from_cam = record_matrix(cam_sensor)
+    sensors, poses = (str(tables / f"{n}.json") if tables else n for n in ("calibrated_sensor", "ego_pose"))
+    ego_l_from_lidar = record_matrix(lidar_sensor, sensors)
+    global_from_ego_l = record_matrix(lidar_pose, poses)
+    global_from_ego_c = record_matrix(cam_pose, poses)
+    ego_c_from_cam = record_matrix(cam_sensor, sensors)
     return invert(ego_c_from_cam) @ invert(global_from_ego_c) @ global_from_ego_l @ ego_l_from_lidar
 
 
@@ -112,7 +132,7 @@ class NuScenes(Dataset):
     splits = tuple(SPLITS)
     default_conf: ClassVar[dict[str, Any]] = {
         "root": None,  # the devkit's dataroot (holds v1.0-*/, samples/); None reads I2PBENCH_NUSCENES_ROOT
-        "version": "v1.0-trainval",  # or v1.0-mini (mini_* splits), v1.0-test (test split)
+        "version": None,  # None: the split's (see SPLITS); or v1.0-trainval, v1.0-mini, v1.0-test
         "cameras": ["CAM_FRONT"],  # any of the six cameras
         "exclude_night": False,  # drop scenes whose description mentions night
         "ego_radius_m": 1.2,  # drop returns within this horizontal distance of the LiDAR (the car's own roof)
@@ -121,16 +141,40 @@ class NuScenes(Dataset):
 
     def __init__(self, split: str, conf: dict[str, Any] | None = None) -> None:
         super().__init__(split, conf)
+        if self.conf["version"] is None:
+            self.split, self.conf["version"] = self._version_on_disk(split)
         version, cameras = self.conf["version"], list(self.conf["cameras"])
         if version not in VERSIONS:
             raise DataError(f"dataset 'nuscenes': unknown version {version!r}; choose one of {list(VERSIONS)}")
-        if SPLITS[split][1] != version:
-            raise DataError(f"dataset 'nuscenes': split {split!r} needs version {SPLITS[split][1]!r}, not {version!r}")
+        needed = SPLITS[self.split][1]
+        if needed != version:
+            raise DataError(f"dataset 'nuscenes': split {self.split!r} needs version {needed!r}, not {version!r}")
         unknown = sorted(set(cameras) - set(CAMERAS))
         if unknown or not cameras:
             raise DataError(f"dataset 'nuscenes': unknown cameras {unknown or cameras}; choose from {list(CAMERAS)}")
         self.cameras = cameras
         self._ids: list[str] | None = None
+
+    def _version_on_disk(self, split: str) -> tuple[str, str]:
+        """(split, version): the split's version, unless `test` (the run's default split) asks for v1.0-test and the
+        dataroot holds one other version only; then that version's evaluation split, said on stderr."""
+        wanted = SPLITS[split][1]
+        try:
+            root = self.root
+        except DataError:  # no root yet: reading frames will say so
+            return split, wanted
+        if split != "test" or (root / wanted).is_dir():
+            return split, wanted
+        present = [v for v in VERSIONS if (root / v).is_dir()]
+        if len(present) != 1:
+            return split, wanted
+        version, other = present[0], EVAL_SPLIT[present[0]]
+        print(
+            f"i2pbench: note: dataset 'nuscenes': {root} holds {version} only (no {wanted}): "
+            f"using split {other!r} instead of {split!r}",
+            file=sys.stderr,
+        )
+        return other, version
 
     @property
     def devkit(self) -> Any:
@@ -171,13 +215,17 @@ class NuScenes(Dataset):
         lidar, cam = self._sample_data(frame_id)
         get = self.devkit.get
         cam_sensor = get("calibrated_sensor", cam["calibrated_sensor_token"])
+        tables = self.root / self.conf["version"]
         T = lidar_to_camera(
             get("calibrated_sensor", lidar["calibrated_sensor_token"]),
             get("ego_pose", lidar["ego_pose_token"]),
             cam_sensor,
             get("ego_pose", cam["ego_pose_token"]),
+            tables,
         )
-        return np.asarray(cam_sensor["camera_intrinsic"], dtype=np.float64), T
+        K = np.asarray(cam_sensor["camera_intrinsic"], dtype=np.float64)
+        check_intrinsics(K, f"{tables / 'calibrated_sensor.json'}: token {cam_sensor['token']}: camera_intrinsic")
+        return K, T
 
     def load(self, frame_id: str) -> SensorFrame:
         lidar, cam = self._sample_data(frame_id)
