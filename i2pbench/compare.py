@@ -5,12 +5,18 @@ way by more than its tolerance, when it becomes NaN where the baseline had a val
 filter any more), or when its frame count changes; a baseline row missing from the new leaderboard is a failure too.
 Tolerances are absolute for accuracy metrics (`acc=-2`: at most 2 points lower) and ratios for latency
 (`latency=x1.5`: at most 1.5 times slower), because seconds mean nothing across machines.
+
+A table the gate cannot trust is an error, not a verdict: an empty, header-only, binary or ragged file would
+otherwise pass vacuously (no baseline row to fail) or compare misaligned columns.
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import pandas as pd
 
@@ -24,6 +30,7 @@ from .leaderboard import (
     MODEL_SIZE,
     RRE_MEAN,
     RTE_MEAN,
+    read,
     stage_latency,
 )
 
@@ -136,10 +143,58 @@ class Report:
         return not self.findings
 
 
+def read_board(path: str | Path, role: str = "leaderboard") -> pd.DataFrame:
+    """A leaderboard file (.csv or .parquet), refusing one that cannot be read as a table; errors start with
+    `role` (e.g. "baseline") and the path, then say what is wrong."""
+    path = Path(path)
+    try:
+        return _read_checked(path)
+    except I2PBenchError as exc:
+        raise I2PBenchError(f"{role} {exc}") from None
+
+
+def _read_checked(path: Path) -> pd.DataFrame:
+    if not path.is_file():
+        raise I2PBenchError(f"{path}: no such leaderboard file")
+    if path.stat().st_size == 0:
+        raise I2PBenchError(f"{path}: empty file (0 bytes), not a leaderboard")
+    if path.suffix != ".parquet":
+        _check_csv(path)
+    try:
+        return read(path)
+    except Exception as exc:  # pandas and pyarrow raise many types for a damaged file
+        kind = "Parquet" if path.suffix == ".parquet" else "CSV"
+        raise I2PBenchError(f"{path}: not a readable {kind} leaderboard ({type(exc).__name__}: {exc})") from None
+
+
+def _check_csv(path: Path) -> None:
+    """Text, a header, and every row as wide as the header: pandas pads a short row with NaN and takes an extra
+    leading field as the index, so a ragged file would compare misaligned cells without a word."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise I2PBenchError(f"{path}: binary, not a CSV leaderboard (byte {exc.start} is not UTF-8 text)") from None
+    if "\0" in text:  # valid UTF-8, yet in no text file
+        raise I2PBenchError(f"{path}: binary, not a CSV leaderboard (character {text.index(chr(0))} is NUL)")
+    reader = csv.reader(io.StringIO(text))
+    try:
+        rows = [(reader.line_num, len(row)) for row in reader if row]  # blank lines skipped, as pandas does
+    except csv.Error as exc:
+        raise I2PBenchError(f"{path}: line {reader.line_num}: not CSV ({exc})") from None
+    if not rows:
+        raise I2PBenchError(f"{path}: no header line, not a leaderboard")
+    width = rows[0][1]
+    for line, fields in rows[1:]:
+        if fields != width:
+            raise I2PBenchError(f"{path}: line {line} has {fields} fields, the header {width}")
+
+
 def _indexed(board: pd.DataFrame, name: str) -> pd.DataFrame:
     missing = [c for c in GROUP if c not in board]
     if missing:
         raise I2PBenchError(f"{name}: not a leaderboard (no column {', '.join(missing)})")
+    if board.empty:
+        raise I2PBenchError(f"{name}: no rows (a header only), so nothing to compare")
     keys = board[GROUP].astype(str)
     duplicated = keys[keys.duplicated()]
     if len(duplicated):
@@ -155,12 +210,17 @@ def _value(row: pd.Series, column: str) -> float:
         return math.nan
 
 
-def compare(new: pd.DataFrame, base: pd.DataFrame, tolerances: list[Tolerance]) -> Report:
-    """Check every baseline row against the new leaderboard."""
-    new, base = _indexed(new, "new leaderboard"), _indexed(base, "baseline")
+def compare(
+    new: pd.DataFrame,
+    base: pd.DataFrame,
+    tolerances: list[Tolerance],
+    names: tuple[str, str] = ("new leaderboard", "baseline"),
+) -> Report:
+    """Check every baseline row against the new leaderboard; `names` say which table an error is about."""
+    new, base = _indexed(new, names[0]), _indexed(base, names[1])
     for tol in tolerances:
         if tol.column not in base:
-            raise I2PBenchError(f"tolerance {tol}: the baseline has no column {tol.column!r}")
+            raise I2PBenchError(f"tolerance {tol}: {names[1]} has no column {tol.column!r}")
     report = Report(added=[k for k in new.index if k not in base.index], tolerances=list(tolerances))
     for key, b in base.iterrows():
         if key not in new.index:

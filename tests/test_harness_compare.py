@@ -1,5 +1,6 @@
 """The regression gate: tolerances, planted regressions, NaN, missing rows, and the CLI's exit status."""
 
+import gzip
 import math
 
 import pandas as pd
@@ -126,3 +127,59 @@ def test_the_cli_exits_1_on_a_regression_and_0_otherwise(tmp_path, capsys):
     assert main(["compare", str(worse), str(base), "--tolerance", GATE]) == 1
     assert "acc: 83.33 -> 50" in capsys.readouterr().out
     assert main(["compare", str(tmp_path / "nope.csv"), str(base)]) == 2
+
+
+HEADER = "dataset,split,combination,weights,frames,Acc. (%) ↑\n"
+ROW = "kitti,all,lsd > depth > oracle > poselib,none,6,100.0\n"
+BROKEN = {
+    "header only": (HEADER.encode(), "no rows (a header only), so nothing to compare"),
+    "empty": (b"", "empty file (0 bytes), not a leaderboard"),
+    "gzip bytes": (  # 1f 8b ...: 0x8b cannot start a UTF-8 character
+        gzip.compress((HEADER + ROW).encode(), mtime=0),
+        "binary, not a CSV leaderboard (byte 1 is not UTF-8 text)",
+    ),
+    "NUL bytes": (b"\0\0\0\0", "binary, not a CSV leaderboard (character 0 is NUL)"),
+    "a short row": ((HEADER + ROW + "kitti,all,x,none\n").encode(), "line 3 has 4 fields, the header 6"),
+    "a long row": ((HEADER + ROW.replace("\n", ",7\n")).encode(), "line 2 has 7 fields, the header 6"),
+}
+
+
+@pytest.mark.parametrize("case", BROKEN)
+@pytest.mark.parametrize("side", ["new leaderboard", "baseline"])
+def test_a_table_the_gate_cannot_trust_exits_2_naming_file_and_fault(tmp_path, capsys, case, side):
+    """Not OK (a vacuous pass) nor 1 (a regression) nor a traceback: 2, and one line saying what is wrong."""
+    content, problem = BROKEN[case]
+    good, broken = tmp_path / "good.csv", tmp_path / "broken.csv"
+    good.write_text(HEADER + ROW)
+    broken.write_bytes(content)
+    args = [str(broken), str(good)] if side == "new leaderboard" else [str(good), str(broken)]
+    assert main(["compare", *args, "--tolerance", "acc=-2"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err == f"i2pbench: error: {side} {broken}: {problem}\n"
+
+
+def test_a_good_csv_with_blank_lines_still_compares(tmp_path, capsys):
+    board = tmp_path / "board.csv"
+    board.write_text(HEADER + "\n" + ROW + "\n\n")
+    assert main(["compare", str(board), str(board), "--tolerance", "acc=-2"]) == 0
+    assert capsys.readouterr().out.endswith("OK: 1 rows compared, 0 regressed, 0 missing, 0 new\n")
+
+
+def test_a_damaged_parquet_exits_2(tmp_path, capsys):
+    good = leaderboard.write(_board(), tmp_path / "good")[2]
+    damaged = tmp_path / "damaged.parquet"
+    damaged.write_bytes(good.read_bytes()[:100])
+    assert main(["compare", str(damaged), str(good)]) == 2
+    assert capsys.readouterr().err.startswith(f"i2pbench: error: new leaderboard {damaged}: not a readable Parquet")
+
+
+def test_an_empty_table_is_refused_by_the_api_too():
+    with pytest.raises(I2PBenchError, match="baseline: no rows"):
+        _check(_board(), base=_board().iloc[[]])
+
+
+def test_the_help_documents_the_exit_codes(capsys):
+    with pytest.raises(SystemExit):
+        main(["compare", "--help"])
+    codes = "exit status: 0 no regression; 1 a baseline row regressed or is missing; 2 the gate could not run"
+    assert codes in " ".join(capsys.readouterr().out.split())

@@ -165,7 +165,7 @@ def test_the_fingerprint_stamps_each_file_and_marks_a_missing_one(tmp_path):
 
 
 def test_a_dataset_that_lists_no_files_keeps_one_key_per_frame(registry):
-    """The default for third-party datasets: keyed by id and config as before, so their caches keep working."""
+    """The default for a third-party dataset: keyed by frame id and config alone, stable from run to run."""
     job = prepare(registry, [Combination(BASE)])[0]
     toy = registry.dataset("toy")("test")
     assert toy.frame_files("a") == [] and toy.fingerprint("a") == []

@@ -1,8 +1,13 @@
-"""`i2pbench compare NEW BASELINE`: the regression gate; exits 1 when a baseline row regresses or disappears."""
+"""`i2pbench compare NEW BASELINE`: the regression gate; exits 1 when a baseline row regresses or disappears, 2 when
+it cannot judge (a table that is missing, empty, header-only or malformed), so CI tells a broken gate from a regression.
+"""
 
 from __future__ import annotations
 
 import argparse
+
+EXIT_CODES = "exit status: 0 no regression; 1 a baseline row regressed or is missing; 2 the gate could not run (a "
+EXIT_CODES += "table missing, empty, header-only, binary, ragged or not a leaderboard; a bad --tolerance)"
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -11,6 +16,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "compare",
         help="compare a new leaderboard with a baseline under per-metric tolerances (exit 1 on a regression)",
+        epilog=EXIT_CODES,
     )
     p.add_argument("new", help="the new leaderboard (.csv or .parquet)")
     p.add_argument("baseline", help="the baseline leaderboard (.csv or .parquet)")
@@ -23,18 +29,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    from .. import leaderboard
-    from ..compare import compare, format_report, parse_tolerances
-    from ..errors import I2PBenchError
+    """Errors are I2PBenchErrors, which the CLI prints on one line and turns into exit status 2."""
+    from ..compare import compare, format_report, parse_tolerances, read_board
 
     tolerances = parse_tolerances(args.tolerance)
-    boards = []
-    for path in (args.new, args.baseline):
-        if not Path(path).is_file():
-            raise I2PBenchError(f"{path}: no such leaderboard file")
-        boards.append(leaderboard.read(path))
-    report = compare(boards[0], boards[1], tolerances)
+    new, base = read_board(args.new, "new leaderboard"), read_board(args.baseline, "baseline")
+    report = compare(new, base, tolerances, names=(f"new leaderboard {args.new}", f"baseline {args.baseline}"))
     print(format_report(report))
     return 0 if report.ok else 1
