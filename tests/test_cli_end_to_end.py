@@ -2,6 +2,7 @@
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pandas as pd
 
@@ -25,6 +26,19 @@ def test_oracle_run_on_real_kitti_frames_is_fully_accurate(shared_data, tmp_path
     assert len(records) == 6
     assert (records["rre_deg"] < 1.0).all() and (records["rte_m"] < 0.2).all()
     assert "| lsd > depth+reflectance > oracle > epnp-ransac |" in done.stdout  # the leaderboard is printed
+
+
+def test_by_default_the_leaderboard_goes_under_runs_not_into_the_committed_leaderboards(shared_data, tmp_path):
+    cmd = [sys.executable, "-m", "i2pbench.cli", "run", "--matcher", "oracle", "--dataset", "kitti", "--split", "all",
+           "--data-root", str(shared_data / "kitti_odometry"), "--frames", "2", "--threads", "1",
+           "--quiet"]  # fmt: skip
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    boards = tmp_path / "runs" / "leaderboards"
+    assert sorted(p.name for p in boards.iterdir()) == ["kitti-all.csv", "kitti-all.md", "kitti-all.parquet"]
+    assert pd.read_csv(boards / "kitti-all.csv").iloc[0]["frames"] == 2
+    assert not (tmp_path / "leaderboards").exists()
+    assert f"written: {Path('runs/leaderboards/kitti-all.csv')}" in done.stderr
 
 
 def test_an_unknown_component_is_refused_with_the_closest_name(tmp_path):

@@ -22,10 +22,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..errors import I2PBenchError
     from ..report.html import write_report
 
     out = Path(args.out or Path(args.run) / "report.html")
-    notes = write_report(Path(args.run), out, overlays=args.overlays, data_root=args.data_root, quiet=args.quiet)
+    try:
+        notes = write_report(Path(args.run), out, overlays=args.overlays, data_root=args.data_root, quiet=args.quiet)
+    except OSError as exc:  # most often an unwritable --out folder; the path at fault is named either way
+        where = f"report of {args.run} into --out {out}"
+        raise I2PBenchError(f"{exc.filename or out}: {exc.strerror or exc} ({where})") from None
     for note in notes:
         print(f"i2pbench: note: {note}", file=sys.stderr)
     print(f"written: {out}", file=sys.stderr)

@@ -8,6 +8,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+CONF_HELP = "component config override (VALUE is YAML)"
+DEVICE_HELP = "where learned stages run: auto (cuda if available), cpu, cuda, cuda:N, mps"
 STAGE_OPTIONS = {
     "extractor2d": ("--extractor", "--extractor2d"),
     "extractor3d": ("--extractor3d",),
@@ -23,35 +25,70 @@ def _split_list(value: str) -> list[str]:
     return [v.strip() for v in value.split(",") if v.strip()]
 
 
+def positive_int(value: str) -> int:
+    """An argparse type: a count that must be at least 1 (`--frames -2` slicing off the last 2 frames is no count)."""
+    refusal = argparse.ArgumentTypeError(f"{value!r} is not a positive integer")
+    try:
+        number = int(value)
+    except ValueError:
+        raise refusal from None
+    if number < 1:
+        raise refusal
+    return number
+
+
+def yaml_setting(value: str) -> str:
+    """An argparse type for KEY=VALUE options whose value is YAML: refuse malformed YAML while parsing options."""
+    import yaml
+
+    try:
+        yaml.safe_load(value.partition("=")[2])
+    except yaml.YAMLError as exc:
+        raise argparse.ArgumentTypeError(f"{value!r}: the value is not valid YAML ({_yaml_problem(exc)})") from None
+    return value
+
+
+def _yaml_problem(exc: Exception) -> str:
+    """PyYAML's one-line reason and position, without its multi-line excerpt."""
+    problem, mark = getattr(exc, "problem", None), getattr(exc, "problem_mark", None)
+    if problem is None:
+        return str(exc).splitlines()[0]
+    return f"{problem} at line {mark.line + 1}, column {mark.column + 1}" if mark else problem
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run combinations of stages over a dataset split and print the leaderboard")
     for kind, flags in STAGE_OPTIONS.items():
         p.add_argument(*flags, dest=kind, type=_split_list, help=f"{kind} name(s), comma-separated; 'none' skips")
     p.add_argument("--preset", help="a registered list of combinations (e.g. edge-ablation)")
     p.add_argument("--grid", help="YAML grid file: base: {kind: name}, grid: {kind: [names]}, confs: {kind: {k: v}}")
-    p.add_argument("--conf", action="append", default=[], metavar="KIND.KEY=VALUE", help="component config override")
+    p.add_argument("--conf", action="append", default=[], type=yaml_setting, metavar="KIND.KEY=VALUE", help=CONF_HELP)
     add_data_options(p)
     p.add_argument(
         "--weights", default="auto", help="'auto' (shipped checkpoint fitting the stages), 'untrained', or a path"
     )
-    p.add_argument("--device", default="auto", help="where learned stages run: auto (cuda if available), cpu, cuda")
+    p.add_argument("--device", default="auto", help=DEVICE_HELP)
     p.add_argument("--seed", type=int, default=0, help="protocol seed for the random transforms")
     p.add_argument("--runs-dir", default="runs", help="where per-frame results are cached")
-    p.add_argument("--out", help="leaderboard file stem (default leaderboards/<dataset>-<split>)")
+    p.add_argument("--out", help="leaderboard file stem (default RUNS_DIR/leaderboards/<dataset>-<split>)")
     p.add_argument("--overwrite", action="store_true", help="recompute frames already in the cache")
-    p.add_argument("--threads", type=int, default=None, help="torch and OpenCV threads (default min(4, cores))")
+    p.add_argument("--threads", type=positive_int, help="torch and OpenCV threads (default min(4, cores))")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_scale_options(p)
 
 
 def add_scale_options(p: argparse.ArgumentParser) -> None:
     """Parallel runs (docs/scale-out.md): worker processes here, or actors on a Ray cluster."""
-    p.add_argument("--workers", type=int, help="worker processes (local; default 1, serial) or Ray actors (default: "
-                   "as many as the cluster's CPUs hold)")  # fmt: skip
+    p.add_argument("--workers", type=positive_int, help="worker processes (local; default 1, serial) or Ray actors "
+                   "(default: as many as the cluster's CPUs hold)")  # fmt: skip
     p.add_argument("--executor", choices=("local", "ray"), default="local", help="where workers run")
     p.add_argument("--address", help="Ray cluster address (auto: the one `ray start` began; default: a local Ray)")
-    p.add_argument("--threads-per-worker", type=int, default=1, help="torch/OpenCV/BLAS threads in each worker")
-    p.add_argument("--chunk-size", type=int, default=8, help="most frames of one combination in one worker task")
+    p.add_argument(
+        "--threads-per-worker", type=positive_int, default=1, help="torch/OpenCV/BLAS threads in each worker"
+    )
+    p.add_argument(
+        "--chunk-size", type=positive_int, default=8, help="most frames of one combination in one worker task"
+    )
 
 
 def add_data_options(p: argparse.ArgumentParser) -> None:
@@ -62,10 +99,11 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
         "--data-conf",
         action="append",
         default=[],
+        type=yaml_setting,
         metavar="KEY=VALUE",
         help="dataset config (YAML values; dotted keys nest, e.g. frames.test=3)",
     )
-    p.add_argument("--frames", type=int, default=None, help="use only the first N frames of the split")
+    p.add_argument("--frames", type=positive_int, default=None, help="use only the first N frames of the split")
 
 
 def parse_data_conf(items: list[str]) -> dict[str, Any]:
@@ -95,30 +133,47 @@ def open_dataset(registry, args: argparse.Namespace):
 
 
 def _combinations(registry, args: argparse.Namespace):
-    from ..grid import base_combinations, expand, load_grid_file, parse_conf_overrides
+    from ..grid import base_combinations, expand, parse_conf_overrides
 
     choices = {kind: getattr(args, kind) for kind in STAGE_OPTIONS if getattr(args, kind)}
     bases = base_combinations(registry, args.preset, stages_named=bool(choices or args.grid))
     confs = parse_conf_overrides(args.conf)
     if args.grid:
-        grid = load_grid_file(args.grid)
+        grid = _grid_file(args.grid)
         choices = {**{k: [v] for k, v in grid.base.items()}, **grid.grid, **choices}
         confs = {k: {**grid.confs.get(k, {}), **confs.get(k, {})} for k in {*grid.confs, *confs}}
     return expand(bases, choices, confs, registry)
 
 
+def _grid_file(path: str):
+    """The grid file, or a PluginError naming it when it cannot be read or is not a grid."""
+    import yaml
+
+    from ..errors import PluginError
+    from ..grid import load_grid_file
+
+    try:
+        return load_grid_file(path)
+    except OSError as exc:
+        raise PluginError(f"--grid {path}: cannot read it ({exc.strerror or exc})") from None
+    except yaml.YAMLError as exc:
+        raise PluginError(f"--grid {path}: not valid YAML ({_yaml_problem(exc)})") from None
+    except (AttributeError, TypeError, ValueError) as exc:
+        shape = "base: {kind: name}, grid: {kind: [names]}, confs: {kind: {key: value}}"
+        raise PluginError(f"--grid {path}: expected {shape} ({exc})") from None
+
+
 def run(args: argparse.Namespace) -> int:
     from .. import leaderboard
+    from ..devices import resolve_device
     from ..errors import DataError
     from ..plugins import default_registry
     from ..protocol import Protocol
     from ..runs.environment import fix_threads
     from ..runs.invocation import Invocation
-    from ..runs.store import ResultsStore
-    from ..training import pick_device
 
     threads = fix_threads(args.threads)
-    args.device = str(pick_device(args.device))  # resolved once: "auto" would read differently in the record
+    args.device = str(resolve_device(args.device))  # resolved once: "auto" would read differently in the record
     registry = default_registry()
     combinations = _combinations(registry, args)
     dataset = open_dataset(registry, args)
@@ -126,16 +181,45 @@ def run(args: argparse.Namespace) -> int:
     if not frame_ids:
         raise DataError(f"dataset {dataset.name!r} split {dataset.split!r} has no frames to run")
     protocol = Protocol(seed=args.seed)
-    store = ResultsStore(Path(args.runs_dir) / f"{dataset.name}-{dataset.split}")
+    name = f"{dataset.name}-{dataset.split}"
+    store = _open_store(Path(args.runs_dir) / name)
     invocation = Invocation(store.root, _meta(args, threads, protocol, dataset, frame_ids, combinations))
     start = time.perf_counter()
     records = _run_grid(registry, combinations, dataset, frame_ids, protocol, store, invocation.id, args)
     board = leaderboard.build(records, protocol)
     invocation.finish(**_summary(records, board, invocation.id, time.perf_counter() - start))
-    paths = leaderboard.write(board, args.out or f"leaderboards/{dataset.name}-{dataset.split}")
-    print(leaderboard.to_markdown(board))
+    print(leaderboard.to_markdown(board))  # first: a leaderboard that cannot be written is still seen
+    paths = _write_board(board, Path(args.out or Path(args.runs_dir) / "leaderboards" / name), store.root)
     print(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store.root}", file=sys.stderr)
     return 0
+
+
+def _open_store(root: Path):
+    """The per-frame results store, or an error naming the folder when it cannot be created."""
+    from ..errors import I2PBenchError
+    from ..runs.store import ResultsStore
+
+    try:
+        return ResultsStore(root)
+    except OSError as exc:
+        raise I2PBenchError(
+            f"--runs-dir: could not write per-frame results into {root} ({exc.strerror or exc})"
+        ) from None
+
+
+def _write_board(board, stem: Path, store_root: Path) -> list[Path]:
+    """The leaderboard's files; an unwritable folder is an error that says nothing computed is lost."""
+    from .. import leaderboard
+    from ..errors import I2PBenchError
+
+    try:
+        return leaderboard.write(board, stem)
+    except OSError as exc:
+        raise I2PBenchError(
+            f"could not write the leaderboard into {stem.parent} ({exc.strerror or exc}); it is printed above, and "
+            f"the per-frame results are kept in {store_root}: rerun with --out STEM in a writable folder to write it "
+            "without recomputing"
+        ) from None
 
 
 def _meta(args, threads: int, protocol, dataset, frame_ids: list[str], combinations) -> dict[str, Any]:

@@ -4,8 +4,21 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
-from .run import STAGE_OPTIONS, _combinations, _split_list, add_data_options, open_dataset
+from .run import (
+    CONF_HELP,
+    DEVICE_HELP,
+    STAGE_OPTIONS,
+    _combinations,
+    _split_list,
+    add_data_options,
+    open_dataset,
+    yaml_setting,
+)
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -14,10 +27,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     for kind, flags in STAGE_OPTIONS.items():
         p.add_argument(*flags, dest=kind, type=_split_list, help=f"{kind} name; 'none' skips")
     p.add_argument("--preset", help="a registered preset; it must come down to one combination with the options")
-    p.add_argument("--conf", action="append", default=[], metavar="KIND.KEY=VALUE", help="component config override")
+    p.add_argument("--conf", action="append", default=[], type=yaml_setting, metavar="KIND.KEY=VALUE", help=CONF_HELP)
     add_data_options(p)
     p.add_argument("--weights", default="auto", help="'auto', 'untrained', or a checkpoint path")
-    p.add_argument("--device", default="auto", help="where learned stages run: auto (cuda if available), cpu, cuda")
+    p.add_argument("--device", default="auto", help=DEVICE_HELP)
     p.add_argument("--seed", type=int, default=0, help="protocol seed for the random transform")
     p.add_argument("--out", help="PNG path (default viz/<dataset>-<split>-<frame>.png)")
     p.add_argument("--edges", action="store_true", help="add a panel of the 2D and 3D edge points")
@@ -38,16 +51,18 @@ def resolve_frame(frame_ids: list[str], frame: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..devices import resolve_device
     from ..errors import PluginError
+    from ..metrics import pose_errors
     from ..plugins import default_registry
     from ..protocol import Protocol
     from ..report import overlay
     from ..report.trace import trace
     from ..runs.environment import fix_threads
     from ..runs.runner import prepare
-    from ..training import pick_device
 
     fix_threads()
+    device = str(resolve_device(args.device))
     registry = default_registry()
     combinations = _combinations(registry, args)
     if len(combinations) != 1:
@@ -55,15 +70,29 @@ def run(args: argparse.Namespace) -> int:
         raise PluginError(f"viz draws one combination, these options give {len(combinations)}: {labels}")
     dataset = open_dataset(registry, args)
     frame_id = resolve_frame(dataset.frame_ids(), args.frame)
-    job = prepare(registry, combinations, args.weights, str(pick_device(args.device)))[0]
+    job = prepare(registry, combinations, args.weights, device)[0]
     frame = Protocol(seed=args.seed).apply(dataset.load(frame_id))
     result = trace(job.pipeline, frame)
     out = args.out or f"viz/{dataset.name}-{dataset.split}-{frame_id.replace('/', '-')}.png"
-    overlay.write_png(out, overlay.compose(_panels(frame, result, job.label, args)))
     estimate = result.outcome.estimate
     summary = overlay.errors_text(estimate.T, frame.T_gt) if estimate.ok else f"failed: {estimate.message}"
-    print(f"{job.label} on {dataset.name}/{dataset.split} {frame_id}: {summary}\nwritten: {out}", file=sys.stderr)
+    print(f"{job.label} on {dataset.name}/{dataset.split} {frame_id}: {summary}", file=sys.stderr)
+    if estimate.ok and pose_errors(estimate.T, frame.T_gt).rre_deg > 180:
+        print(f"i2pbench: note: {overlay.RRE_NOTE}", file=sys.stderr)
+    _write(out, overlay.compose(_panels(frame, result, job.label, args)))
+    print(f"written: {out}", file=sys.stderr)
     return 0
+
+
+def _write(out: str, image: np.ndarray) -> None:
+    """The PNG, or an error naming the path when it cannot be written (the pose errors are printed already)."""
+    from ..errors import I2PBenchError
+    from ..report import overlay
+
+    try:
+        overlay.write_png(out, image)
+    except OSError as exc:
+        raise I2PBenchError(f"--out {out}: could not write the PNG ({exc.strerror or exc})") from None
 
 
 def _panels(frame, result, label: str, args: argparse.Namespace) -> list:

@@ -69,7 +69,8 @@ def _example(dataset, run: RunDir, kind: str, label: str, record: pd.Series) -> 
 def stored_errors(record: pd.Series) -> str:
     if record["status"] != "ok":
         return f"failed: {record.get('error') or 'no pose'}"
-    return f"RTE {record['rte_m']:.2f} m, RRE {record['rre_deg']:.2f}°"
+    rre = overlay.rre_text(record["rre_deg"], record.get("geodesic_deg", np.nan), "°")
+    return f"RTE {record['rte_m']:.2f} m, {rre}"
 
 
 def jpeg(image: np.ndarray) -> bytes:

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from .. import leaderboard as lb
-from . import curves
+from . import curves, overlay
 from .examples import Example, render_examples
 from .rundir import RunDir, load_run
 
@@ -101,7 +101,7 @@ def render(run: RunDir, board: pd.DataFrame, examples: list[Example], notes: lis
         _section("Leaderboard", _explain_board(run), table(board)),
         _section(
             "Cumulative errors",
-            "Share of all frames (failures included) under each error.",
+            f"Share of all frames (failures included) under each error. {overlay.RRE_NOTE}.",
             _png(curves.cumulative_errors(groups, run.protocol), "cumulative RTE and RRE"),
         ),
         _section(
@@ -200,5 +200,5 @@ def _explain_examples() -> str:
     return (
         "LiDAR points projected with the initial pose (the calibration applied to the moved cloud), the ground truth "
         "and the stored prediction; colour by distance, near warm and far cool. Under the ground truth the points "
-        "sit on the objects they hit."
+        f"sit on the objects they hit. {overlay.RRE_NOTE}."
     )

@@ -32,12 +32,25 @@ def points_panel(frame: Frame, T: np.ndarray | None, radius: int = 1) -> np.ndar
     return draw.draw_points(canvas, uv, draw.distance_colours(distance), distance, radius)
 
 
+RRE_NOTE = (
+    "RRE is the peers' sum of the three absolute 'xzy' Euler angles, so one frame's RRE runs up to 450° "
+    "(180 + 90 + 180), past 360°; the geodesic angle, at most 180°, is the rotation error itself"
+)
+
+
+def rre_text(rre_deg: float, geodesic_deg: float, unit: str = " deg") -> str:
+    """One frame's RRE; past 180°, which no rotation angle exceeds, it says it is an Euler sum and adds the geodesic."""
+    if rre_deg > 180:
+        return f"RRE {rre_deg:.2f}{unit} (sum of 3 Euler angles; geodesic {geodesic_deg:.2f}{unit})"
+    return f"RRE {rre_deg:.2f}{unit}"
+
+
 def errors_text(T: np.ndarray | None, T_gt: np.ndarray | None) -> str:
     """ "RTE 0.12 m, RRE 1.30 deg" of T against the ground truth ("" when either is missing)."""
     if T is None or T_gt is None:
         return ""
     errors = pose_errors(T, T_gt)
-    return f"RTE {errors.rte_m:.2f} m, RRE {errors.rre_deg:.2f} deg"
+    return f"RTE {errors.rte_m:.2f} m, {rre_text(errors.rre_deg, errors.geodesic_deg)}"
 
 
 def pose_panels(frame: Frame, T_pred: np.ndarray | None, title: str = "", failure: str = "", radius: int = 1):
