@@ -4,7 +4,7 @@ leaderboard next to the reference stages, checked by the conformance kit, blocke
 The tutorial's ```bash blocks run verbatim except for three paths: `.venv/` becomes a throwaway virtual environment
 layered over this one (a .pth file adds this environment's site-packages), so installing the example never touches
 the environment other tests run in; the example package and the KITTI frames get absolute paths, because the
-commands run in a temporary directory that receives the runs/ and leaderboards/ they write.
+commands run in a temporary directory that receives the runs/ (leaderboards included) they write.
 """
 
 import importlib.util
@@ -92,7 +92,7 @@ def test_following_the_tutorial_installs_lists_runs_checks_and_removes_the_plugi
     assert "example 0.1.0 (i2pbench-example)" in listing
     assert re.search(r"extractor2d\s+harris", listing) and re.search(r"extractor3d\s+curvature", listing)
     assert "harris > curvature > oracle > epnp-ransac" in output_of("i2pbench run")
-    board = pd.read_csv(work / "leaderboards" / "kitti-all.csv")
+    board = pd.read_csv(work / "runs" / "leaderboards" / "kitti-all.csv")  # a user's runs, not the repo's boards
     row = board.set_index("combination").loc["harris > curvature > oracle > epnp-ransac"]
     assert (row["extractor2d"], row["extractor3d"], row["frames"]) == ("harris", "curvature", 2)
     assert "extractor2d 'harris' conforms" in output_of("check_component")
