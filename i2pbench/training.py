@@ -1,45 +1,62 @@
 """The generic training loop for any combination with learned stages; the loss comes from the matcher plugin.
 
-Each step draws a training frame and a fresh protocol transform (keyed by the step, so a resumed run sees the same
-sequence), runs the extractors, then the learned stages with gradients, and minimises `matcher.loss`. Checkpoints
-(weights with identity) and a resume file (optimiser state, step) are written atomically every N steps.
+A step takes `batch_size` frames per rank, `accumulate` times (effective batch = ranks x accumulate x batch_size);
+each frame has its own protocol transform, drawn from its global sample index, so a resumed run, another worker count
+or another number of ranks sees the same sequence (`training_data.py`). Data work runs in DataLoader workers; the
+loop only moves padded batches to the device and runs the learned stages (`batching.py`). Under `torchrun` each rank
+takes its share of every step and DistributedDataParallel averages the gradients; rank 0 validates and checkpoints.
+
+Checkpoints (weights with identity) and a resume file (optimiser state and the checkpoint's sha256, so a resume file
+left from another save is recognised and not applied) are written atomically every N steps, and the `best`
+checkpoint is kept beside the `last` one.
 """
 
 from __future__ import annotations
 
+import contextlib
+import json
 import math
 import os
+import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
+from .batching import BatchForward, to_device
 from .components import TrainableMatcher
 from .data.base import Dataset
-from .errors import I2PBenchError, PluginError
+from .errors import I2PBenchError, PluginError, WeightsError
 from .metrics import pose_errors, summarize
 from .pipeline import Pipeline
 from .protocol import Protocol
-from .types import Features, Frame, Keypoints3D
-from .weights import load_checkpoint, save_checkpoint
+from .training_data import TrainingSamples, collate_samples
+from .types import Frame
+from .weights import file_digest, load_checkpoint, mismatch, save_checkpoint
 
-Report = Callable[[int, dict[str, float]], None]
+Report = Callable[[int, dict[str, Any]], None]
 
 
 @dataclass(frozen=True)
 class TrainConfig:
     steps: int = 20000
+    batch_size: int = 1  # frames per rank per forward pass
+    accumulate: int = 1  # forward passes per optimiser step (gradient accumulation)
     lr: float = 1e-4  # Adam; the reference code uses 1e-5
+    warmup_steps: int = 0  # linear warm-up from 0 to lr
+    schedule: str = "constant"  # "constant" or "cosine" (to 0 at `steps`) after the warm-up
     grad_clip: float = 1.0
     checkpoint_every: int = 250
     validate_every: int = 1000
     val_frames: int = 20
     seed: int = 0
     device: str = "auto"  # "auto": cuda when available
+    workers: int = 0  # DataLoader worker processes (0: in the main process)
+    amp: str = "off"  # "bf16": autocast the learned stages in bfloat16 (losses stay fp32)
+    cache_dir: str | None = None  # on-disk cache of extractor outputs and grouping per frame (None: in memory)
 
 
 def pick_device(choice: str) -> torch.device:
@@ -48,8 +65,22 @@ def pick_device(choice: str) -> torch.device:
     return torch.device(choice)
 
 
+def learning_rate(config: TrainConfig, step: int) -> float:
+    """the schedule as a pure function of the step, so resuming needs no scheduler state."""
+    if step < config.warmup_steps:
+        return config.lr * (step + 1) / config.warmup_steps
+    if config.schedule == "cosine":
+        span = max(config.steps - config.warmup_steps, 1)
+        return config.lr * 0.5 * (1 + math.cos(math.pi * min(step - config.warmup_steps, span) / span))
+    return config.lr
+
+
 def _resume_path(out: Path) -> Path:
     return out.with_name(out.name + ".resume")
+
+
+def best_path(out: Path) -> Path:
+    return out.with_name(f"{out.stem}.best{out.suffix}")
 
 
 def check_trainable(pipeline: Pipeline) -> TrainableMatcher:
@@ -61,13 +92,42 @@ def check_trainable(pipeline: Pipeline) -> TrainableMatcher:
     return matcher
 
 
-def forward_features(pipeline: Pipeline, frame: Frame, kp2d, kp3d) -> Features:
-    """The learned part of the pipeline, with gradients; stages see no ground truth."""
-    hidden, s = frame.without_ground_truth(), pipeline.stages
-    d2 = s["encoder2d"](hidden, kp2d) if "encoder2d" in s else None
-    d3 = s["encoder3d"](hidden, kp3d) if "encoder3d" in s else None
-    features = Features(d2, d3)
-    return s["exchanger"](hidden, kp2d, kp3d, features) if "exchanger" in s else features
+def check_writable(out: Path) -> None:
+    """fail before step 1, not at the first checkpoint, when the output folder cannot take files."""
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=out.parent, prefix=f".{out.name}.", suffix=".probe"):
+            pass
+    except OSError as exc:
+        raise WeightsError(f"cannot write checkpoints to {out.parent}: {exc.strerror or exc}") from exc
+
+
+@dataclass(frozen=True)
+class Distributed:
+    """this process's place under torchrun (rank 0 of 1 without it)."""
+
+    rank: int = 0
+    world: int = 1
+
+    @classmethod
+    def from_env(cls) -> Distributed:
+        return cls(int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1)))
+
+    @property
+    def main(self) -> bool:
+        return self.rank == 0
+
+
+class TrainModel(torch.nn.Module):
+    """the learned stages as one module whose forward is the batch loss: what DDP wraps."""
+
+    def __init__(self, pipeline: Pipeline) -> None:
+        super().__init__()
+        self.stages = torch.nn.ModuleDict(pipeline.learned_modules())
+        self.batch_forward = BatchForward(pipeline.stages)
+
+    def forward(self, batch: dict[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
+        return self.batch_forward(batch)
 
 
 class Trainer:
@@ -76,61 +136,116 @@ class Trainer:
     ) -> None:
         self.pipeline, self.train_set, self.val_set, self.out, self.config = pipeline, train_set, val_set, out, config
         self.matcher = check_trainable(pipeline)
+        self.dist = Distributed.from_env()
         self.device = pick_device(config.device)
+        if self.dist.world > 1 and self.device.type == "cuda":
+            self.device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
         pipeline.to(self.device)
+        self.model = TrainModel(pipeline)
         self.params = [p for m in pipeline.learned_modules().values() for p in m.parameters()]
         self.optimizer = torch.optim.Adam(self.params, lr=config.lr)
-        self.train_ids = train_set.frame_ids()
+        self.samples = TrainingSamples(pipeline.stages, train_set, config.seed, config.cache_dir)
         self.step, self.seconds, self.validation = 0, 0.0, {}
-        self._keypoints: dict[str, tuple] = {}
+        self.best: float | None = None
+        self.notes: list[str] = []
 
-    def resume(self) -> bool:
-        """Continue from the last checkpoint: exactly with its resume file (optimiser state), or from its weights and
-        step with a fresh optimiser when only the checkpoint travelled (resume files are not committed)."""
+    def sample(self, index: int) -> Frame:
+        """sample index's frame and transform (a pure function of (seed, index))."""
+        return self.samples.frame(index)
+
+    def resume(self) -> str | None:
+        """Continue from the last checkpoint, refusing one of other stages or extractors. With its resume file (when
+        it belongs to this very checkpoint) the optimiser continues exactly; else from the weights and step with a
+        fresh optimiser, said in the returned note. None: nothing to resume."""
         if not self.out.is_file():
-            return False
+            return None
         checkpoint = load_checkpoint(self.out)
+        reason = mismatch(checkpoint, self.pipeline, strict_extractors=True)
+        if reason:
+            raise WeightsError(f"cannot resume {self.out}: {reason}; choose another --out or delete it")
         for kind, module in self.pipeline.learned_modules().items():
             module.load_state_dict(checkpoint.state[kind])
         self.step = int(checkpoint.meta.get("steps", 0))
         self.seconds = float(checkpoint.meta.get("train_seconds", 0.0))
         self.validation = checkpoint.meta.get("validation", {})
+        self.best = checkpoint.meta.get("best_acc")
+        note = self._load_optimizer()
+        self.notes.append(note)
+        return note
+
+    def _load_optimizer(self) -> str:
         state_path = _resume_path(self.out)
-        if state_path.is_file():
+        if not state_path.is_file():
+            return f"resumed at step {self.step} with a fresh optimiser (no {state_path.name})"
+        try:
             state = torch.load(state_path, map_location=self.device, weights_only=True)
-            if int(state["step"]) == self.step:
-                self.optimizer.load_state_dict(state["optimizer"])
-        return True
+        except Exception as exc:  # noqa: BLE001 - a torn resume file only costs the optimiser's moments
+            return f"resumed at step {self.step} with a fresh optimiser ({state_path.name} unreadable: {exc})"
+        if state.get("checkpoint_sha256") != file_digest(self.out) or int(state["step"]) != self.step:
+            return (
+                f"resumed at step {self.step} with a fresh optimiser ({state_path.name} belongs to another save of "
+                f"{self.out.name}: step {state.get('step')}, an interrupted checkpoint)"
+            )
+        self.optimizer.load_state_dict(state["optimizer"])
+        return f"resumed exactly at step {self.step}"
 
-    def sample(self, step: int) -> Frame:
-        """The step's frame and transform: a pure function of (seed, step), so resuming is exact."""
-        rng = np.random.default_rng([self.config.seed, step])
-        frame_id = self.train_ids[int(rng.integers(len(self.train_ids)))]
-        protocol = Protocol(seed=self.config.seed * 1_000_003 + step)
-        return protocol.apply(self.train_set.load(frame_id))
+    def loader(self) -> Iterator[dict[str, Any]]:
+        """micro-batches from the current step on: this rank's share of each step's samples, in order."""
+        c, d = self.config, self.dist
+        per_step = c.accumulate * d.world * c.batch_size
+        indices = [
+            ((step * c.accumulate + m) * d.world + d.rank) * c.batch_size + j
+            for step in range(self.step, c.steps)
+            for m in range(c.accumulate)
+            for j in range(c.batch_size)
+        ]
+        assert len(indices) == (c.steps - self.step) * per_step // d.world
+        loader = torch.utils.data.DataLoader(
+            self.samples,
+            batch_size=c.batch_size,
+            sampler=indices,
+            collate_fn=collate_samples,
+            num_workers=c.workers,
+            pin_memory=self.device.type == "cuda",
+            prefetch_factor=4 if c.workers else None,
+            persistent_workers=False,
+            worker_init_fn=_one_thread if c.workers else None,
+        )
+        return iter(loader)
 
-    def keypoints(self, frame: Frame):
-        """Extractor outputs depend on the image and the scan order only, never on the transform: cache indices."""
-        s = self.pipeline.stages
-        if frame.frame_id not in self._keypoints:
-            hidden = frame.without_ground_truth()
-            self._keypoints[frame.frame_id] = (s["extractor2d"](hidden), s["extractor3d"](hidden).index)
-        kp2d, index3d = self._keypoints[frame.frame_id]
-        return kp2d, Keypoints3D.from_index(frame, index3d)
+    def _autocast(self) -> contextlib.AbstractContextManager:
+        if self.config.amp == "bf16":
+            return torch.autocast(self.device.type, dtype=torch.bfloat16)
+        if self.config.amp not in ("off", "", None):
+            raise I2PBenchError(f"--amp {self.config.amp!r}: choose 'bf16' or 'off'")
+        return contextlib.nullcontext()
 
-    def train_step(self, step: int) -> dict[str, float]:
-        frame = self.sample(step)
-        kp2d, kp3d = self.keypoints(frame)
+    def train_step(self, model: torch.nn.Module, batches: list[dict[str, Any]]) -> dict[str, Any]:
+        """one optimiser step over `accumulate` micro-batches; a micro-batch whose frames all broke is skipped."""
         for module in self.pipeline.learned_modules().values():
             module.train()
-        features = forward_features(self.pipeline, frame, kp2d, kp3d)
-        loss, terms = self.matcher.loss(frame, kp2d, kp3d, features)
+        for group in self.optimizer.param_groups:
+            group["lr"] = learning_rate(self.config, self.step)
         self.optimizer.zero_grad(set_to_none=True)
-        if torch.isfinite(loss) and loss.requires_grad:
-            loss.backward()
+        terms: dict[str, Any] = {}
+        errors = [e for b in batches for e in b["errors"]]
+        used = [b for b in batches if b["size"]]
+        for i, batch in enumerate(used):
+            sync = contextlib.nullcontext() if i == len(used) - 1 or not hasattr(model, "no_sync") else model.no_sync()
+            with sync:
+                with self._autocast():
+                    loss, t = model(to_device(batch, self.device, non_blocking=True))
+                loss = loss.float()
+                if torch.isfinite(loss) and loss.requires_grad:
+                    (loss / len(used)).backward()
+            for k, v in {"loss": float(loss.detach()), **t}.items():
+                terms[k] = terms.get(k, 0.0) + float(v) / len(used)
+        if used:  # under DDP every rank must have a frame: one rank with none would leave the others waiting
             torch.nn.utils.clip_grad_norm_(self.params, self.config.grad_clip)
             self.optimizer.step()
-        return {"loss": float(loss.detach()), **{k: float(v) for k, v in terms.items()}}
+        if errors:
+            terms.update(skipped=float(len(errors)), error=errors[0][:200])
+        return terms
 
     def validate(self) -> dict[str, float]:
         """Acc./RTE/RRE of the full pipeline (solver included) on the first val frames, protocol seed 0."""
@@ -139,7 +254,10 @@ class Trainer:
         self.pipeline.eval()
         protocol, rte, rre = Protocol(), [], []
         for frame_id in self.val_set.frame_ids()[: self.config.val_frames]:
-            frame = protocol.apply(self.val_set.load(frame_id))
+            try:
+                frame = protocol.apply(self.val_set.load(frame_id))
+            except I2PBenchError:
+                continue
             errors = pose_errors(self.pipeline.run(frame).estimate.T, frame.T_gt)
             rte.append(errors.rte_m)
             rre.append(errors.rre_deg)
@@ -147,38 +265,90 @@ class Trainer:
         return {"step": self.step, "frames": len(rte), **{k: v for k, v in stats.items() if not math.isnan(v)}}
 
     def save(self, meta: dict[str, Any]) -> None:
-        save_checkpoint(
-            self.out,
-            self.pipeline,
-            steps=self.step,
-            train_seconds=round(self.seconds, 1),
-            validation=self.validation,
-            **meta,
-        )
+        """checkpoint, then the resume file that names the checkpoint's bytes; `best` when val Acc. improved."""
+        extra = {"steps": self.step, "train_seconds": round(self.seconds, 1), "validation": self.validation}
+        save_checkpoint(self.out, self.pipeline, best_acc=self.best, **extra, **meta)
+        state = {
+            "optimizer": self.optimizer.state_dict(),
+            "step": self.step,
+            "seconds": self.seconds,
+            "checkpoint_sha256": file_digest(self.out),
+        }
         tmp = _resume_path(self.out).with_suffix(".tmp")
-        torch.save({"optimizer": self.optimizer.state_dict(), "step": self.step, "seconds": self.seconds}, tmp)
+        torch.save(state, tmp)
         os.replace(tmp, _resume_path(self.out))
 
-    def run(self, meta: dict[str, Any], report: Report | None = None) -> None:
+    def _validate_and_keep_best(self, meta: dict[str, Any], report: Report | None) -> None:
+        self.validation = self.validate()
+        if report and self.validation:
+            report(self.step, {f"val_{k}": v for k, v in self.validation.items()})
+        acc = self.validation.get("acc")
+        if acc is not None and (self.best is None or acc > self.best):
+            self.best = acc
+            extra = {"steps": self.step, "train_seconds": round(self.seconds, 1), "validation": self.validation}
+            save_checkpoint(best_path(self.out), self.pipeline, best_acc=acc, **extra, **meta)
+
+    def run(self, meta: dict[str, Any], report: Report | None = None, log: Path | None = None) -> None:
         c = self.config
+        if self.dist.main:
+            check_writable(self.out)
+        model = self._wrapped()
+        batches = self.loader()
+        logger = StepLog(log) if log is not None and self.dist.main else None
         while self.step < c.steps:
             start = time.perf_counter()
-            try:
-                terms = self.train_step(self.step)
-            except I2PBenchError as exc:  # a broken training frame is skipped, not fatal
-                terms = {"skipped": 1.0, "error": str(exc)[:200]}  # type: ignore[dict-item]
+            micro = [next(batches) for _ in range(c.accumulate)]
+            waited = time.perf_counter() - start
+            terms = self.train_step(model, micro)
             self.step += 1
-            self.seconds += time.perf_counter() - start
-            if report:
+            elapsed = time.perf_counter() - start
+            self.seconds += elapsed
+            terms.update(lr=learning_rate(c, self.step - 1), data_wait=waited / max(elapsed, 1e-9))
+            if report and self.dist.main:
                 report(self.step, terms)
+            if logger:
+                logger.write(self.step, terms, elapsed)
+            if not self.dist.main:
+                continue
             if self.step % c.validate_every == 0 or self.step == c.steps:
-                self.validation = self.validate()
-                if report and self.validation:
-                    report(self.step, {f"val_{k}": v for k, v in self.validation.items()})
+                self._validate_and_keep_best(meta, report)
             if self.step % c.checkpoint_every == 0 or self.step == c.steps:
                 self.save(meta)
 
+    def _wrapped(self) -> torch.nn.Module:
+        if self.dist.world == 1:
+            return self.model
+        import torch.distributed as dist
 
-def training_meta(train_set: Dataset, config: TrainConfig) -> dict[str, Any]:
+        if not dist.is_initialized():
+            dist.init_process_group("nccl" if self.device.type == "cuda" else "gloo")
+        ids = [self.device.index] if self.device.type == "cuda" else None
+        return torch.nn.parallel.DistributedDataParallel(self.model, device_ids=ids)
+
+
+def _one_thread(_: int) -> None:
+    """data workers run one torch thread each: the main process owns the cores for the network."""
+    torch.set_num_threads(1)
+
+
+class StepLog:
+    """one JSON line per step: loss terms, lr, steps/s, data-wait share, peak memory."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        path.parent.mkdir(parents=True, exist_ok=True)
+
+    def write(self, step: int, terms: dict[str, Any], seconds: float) -> None:
+        record = {"step": step, "seconds": round(seconds, 4), "steps_per_s": round(1 / max(seconds, 1e-9), 3)}
+        record.update({k: v for k, v in terms.items() if isinstance(v, int | float | str)})
+        if torch.cuda.is_available():
+            record["max_memory_mb"] = round(torch.cuda.max_memory_allocated() / 2**20, 1)
+        with self.path.open("a") as f:
+            f.write(json.dumps(record) + "\n")
+
+
+def training_meta(train_set: Dataset, config: TrainConfig, world: int = 1) -> dict[str, Any]:
     trained_on = {**train_set.identity(), "frames": len(train_set.frame_ids())}
-    return {"trained_on": trained_on, "train_config": asdict(config)}
+    effective = world * config.accumulate * config.batch_size
+    return {"trained_on": trained_on, "train_config": {**asdict(config), "ranks": world, "effective_batch": effective}}
+

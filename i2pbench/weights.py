@@ -46,6 +46,18 @@ def file_digest(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+def content_digest(meta_text: str, state: dict[str, dict[str, torch.Tensor]]) -> str:
+    """sha256 of the metadata and every tensor's bytes, in a fixed order: torch's loader skips the zip CRCs, so a
+    flipped bit in a weight would otherwise load silently."""
+    h = hashlib.sha256(meta_text.encode())
+    for kind in sorted(state):
+        for name in sorted(state[kind]):
+            tensor = state[kind][name]
+            h.update(f"{kind}.{name}:{tensor.dtype}:{tuple(tensor.shape)}".encode())
+            h.update(tensor.detach().cpu().contiguous().view(-1).view(torch.uint8).numpy().tobytes())
+    return h.hexdigest()
+
+
 def stage_signature(pipeline: Pipeline) -> dict[str, dict[str, Any]]:
     """Name and config of every learned stage and extractor: what a checkpoint must agree with."""
     kinds = list(pipeline.learned_modules()) + [k for k in EXTRACTOR_KINDS if k in pipeline.stages]
@@ -69,10 +81,9 @@ def save_checkpoint(path: str | Path, pipeline: Pipeline, **meta: Any) -> Path:
         "torch": torch.__version__,
         **_jsonable(meta),
     }
-    payload = {
-        "meta": json.dumps(full_meta),
-        "state": {k: m.state_dict() for k, m in pipeline.learned_modules().items()},
-    }
+    state = {k: m.state_dict() for k, m in pipeline.learned_modules().items()}
+    meta_text = json.dumps(full_meta)
+    payload = {"meta": meta_text, "state": state, "sha256": content_digest(meta_text, state)}
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
     try:
@@ -95,6 +106,12 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
         state = payload["state"]
     except Exception as exc:
         raise WeightsError(f"checkpoint {path} is not a readable i2pbench checkpoint: {exc}") from exc
+    recorded = payload.get("sha256")  # absent in checkpoints written before it was recorded: nothing to check
+    if recorded is not None and recorded != content_digest(payload["meta"], state):
+        raise WeightsError(
+            f"checkpoint {path} is corrupt: its content no longer matches the sha256 recorded when it was saved "
+            "(flipped bytes on disk or in transfer); restore it from a good copy"
+        )
     if meta.get("format") != FORMAT:
         raise WeightsError(f"checkpoint {path} has format {meta.get('format')!r}, expected {FORMAT!r}")
     return Checkpoint(path, meta, state)

@@ -1,8 +1,11 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
 import toy_plugin
 
+from i2pbench.api import Extractor2D, Keypoints2D, hookimpl
 from i2pbench.errors import PluginError, WeightsError
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import build_registry
@@ -24,6 +27,34 @@ LEARNED = {
 class Clean(toy_plugin.ToyDataset):
     def frame_ids(self):
         return ["a", "c"]
+
+
+class FramePixels(Extractor2D):
+    """pixels that differ from frame to frame, so a toy loss depends on which frames a step takes."""
+
+    name = "frame-grid"
+
+    def __call__(self, frame):
+        k = float(ord(frame.frame_id[0]) % 7)
+        return Keypoints2D(np.array([[k, 1.0], [2.0, k * k]], np.float32))
+
+
+class VariedFrames:
+    @hookimpl
+    def register_extractors_2d(self, register):
+        register(FramePixels)
+
+
+VARIED = {**LEARNED, "extractor2d": "frame-grid"}
+
+
+def varied_trainer(out, **conf) -> Trainer:
+    """a toy trainer whose loss depends on the frames: 3 steps, seeded initial weights."""
+    registry = build_registry((toy_plugin, VariedFrames()))
+    torch.manual_seed(0)
+    pipeline = Pipeline.build(registry, Combination(VARIED))
+    config = TrainConfig(steps=3, lr=0.05, checkpoint_every=3, validate_every=1000, seed=1, **conf)
+    return Trainer(pipeline, Clean("test"), None, Path(out), config)
 
 
 @pytest.fixture
@@ -140,3 +171,97 @@ def test_training_continues_from_the_checkpoint_alone_when_the_resume_file_is_go
     assert again.resume() and again.step == 3
     weights = load_checkpoint(tmp_path / "c.pt").state["encoder2d"]
     assert all(torch.equal(p, weights[k]) for k, p in again.pipeline.stages["encoder2d"].state_dict().items())
+
+
+def _state(path):
+    return load_checkpoint(path).state["encoder2d"]
+
+
+def test_resuming_a_checkpoint_of_other_stages_is_refused_naming_the_stage(registry, tmp_path):
+    _trainer(registry, tmp_path / "w.pt", steps=2).run({})
+    before = (tmp_path / "w.pt").read_bytes()
+    pipeline = _pipeline(registry, encoder2d={"dim": 8})
+    other = Trainer(pipeline, Clean("test"), None, tmp_path / "w.pt", TrainConfig(steps=3))
+    with pytest.raises(WeightsError, match=r"cannot resume .*w\.pt: encoder2d: the pipeline has 'linear' \{'dim': 8\}"):
+        other.resume()
+    assert (tmp_path / "w.pt").read_bytes() == before  # nothing overwritten
+
+
+def test_a_resume_file_from_another_save_is_not_applied_and_says_so(registry, tmp_path):
+    _trainer(registry, tmp_path / "w.pt", steps=2).run({})
+    stale = (tmp_path / "w.pt.resume").read_bytes()
+    _trainer(registry, tmp_path / "w.pt", steps=3).run({})  # resumes, saves step 3 and its resume file
+    (tmp_path / "w.pt.resume").write_bytes(stale)  # as if killed between writing the checkpoint and its resume file
+    again = _trainer(registry, tmp_path / "w.pt", steps=4)
+    note = again.resume()
+    assert again.step == 3 and "fresh optimiser" in note and "belongs to another save" in note
+    exact = _trainer(registry, tmp_path / "w.pt", steps=4)
+    exact.save({})  # a matching pair again
+    assert exact.resume() == "resumed exactly at step 0"
+
+
+def test_a_checkpoint_with_a_flipped_byte_is_refused(registry, tmp_path):
+    pipeline = _pipeline(registry)
+    path = save_checkpoint(tmp_path / "w.pt", pipeline, steps=1)
+    data = bytearray(path.read_bytes())
+    weights = pipeline.stages["encoder2d"].layer.weight.detach().numpy().tobytes()
+    offset = bytes(data).find(weights[:8])  # the stored weight tensor's first bytes
+    assert offset > 0
+    data[offset + 2] ^= 0x10
+    path.write_bytes(bytes(data))
+    with pytest.raises(WeightsError, match=r"w\.pt is corrupt: its content no longer matches the sha256"):
+        load_checkpoint(path)
+
+
+def test_an_unwritable_output_folder_fails_before_the_first_step(registry, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("a file, not a folder")  # unwritable even as root, unlike a chmod'ed folder
+    trainer = _trainer(registry, blocker / "w.pt", steps=2)
+    steps = []
+    with pytest.raises(WeightsError, match=r"cannot write checkpoints to .*file"):
+        trainer.run({}, lambda step, terms: steps.append(step))
+    assert steps == []
+
+
+def test_batches_and_workers_change_neither_the_samples_nor_the_result(monkeypatch, tmp_path):
+    """batch 2 x 3 steps = the mean over the same 6 samples; 2 DataLoader workers give bit-identical weights."""
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+
+    def train(name, **conf):
+        varied_trainer(tmp_path / name, **conf).run({})
+        return _state(tmp_path / name)
+
+    batched = train("b.pt", batch_size=2)
+    workers = train("w.pt", batch_size=2, workers=2)
+    accumulated = train("a.pt", batch_size=1, accumulate=2)
+    assert all(torch.equal(batched[k], workers[k]) for k in batched)
+    assert all(torch.allclose(batched[k], accumulated[k], atol=1e-6) for k in batched)
+    assert not torch.allclose(batched["layer.weight"], train("one.pt")["layer.weight"], atol=1e-3)
+
+
+def _ddp_rank(rank: int, world: int, port: int, out: str) -> None:
+    import os
+
+    os.environ.update(RANK=str(rank), WORLD_SIZE=str(world), MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
+    os.environ["I2PBENCH_LOAD_PLUGINS"] = ""
+    torch.set_num_threads(1)
+    varied_trainer(out, batch_size=1).run({})
+    torch.distributed.destroy_process_group()
+
+
+def test_ddp_on_two_gloo_processes_equals_one_process_with_the_same_total_batch(monkeypatch, tmp_path):
+    import socket
+
+    import torch.multiprocessing as mp
+
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    mp.start_processes(_ddp_rank, args=(2, port, str(tmp_path / "ddp.pt")), nprocs=2, start_method="spawn")
+    varied_trainer(tmp_path / "one.pt", batch_size=2).run({})
+    varied_trainer(tmp_path / "alone.pt", batch_size=1).run({})
+    ddp, one, alone = (_state(tmp_path / f) for f in ("ddp.pt", "one.pt", "alone.pt"))
+    assert load_checkpoint(tmp_path / "ddp.pt").meta["steps"] == 3
+    assert all(torch.allclose(ddp[k], one[k], atol=1e-6) for k in ddp)
+    assert not torch.allclose(ddp["layer.weight"], alone["layer.weight"], atol=1e-3)  # ranks really were averaged

@@ -20,15 +20,38 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--val-split", default="val", help="split for the periodic validation ('none' to skip)")
     p.add_argument("--data-root", help="dataset root directory (else I2PBENCH_<NAME>_ROOT)")
     p.add_argument("--out", required=True, help="checkpoint path; training resumes from it when it exists")
-    p.add_argument("--steps", type=int, default=20000)
+    p.add_argument("--steps", type=positive_int, default=20000, help="optimiser steps")
+    p.add_argument("--batch-size", type=positive_int, default=1, help="frames per forward pass (per rank)")
+    p.add_argument("--accumulate", type=positive_int, default=1, help="forward passes per optimiser step")
+    p.add_argument("--workers", type=non_negative_int, default=0, help="DataLoader worker processes for data work")
     p.add_argument("--lr", type=float, default=1e-4)
-    p.add_argument("--checkpoint-every", type=int, default=250)
-    p.add_argument("--validate-every", type=int, default=1000)
-    p.add_argument("--val-frames", type=int, default=20)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--device", default="auto")
-    p.add_argument("--threads", type=int, default=None, help="torch, OpenCV and BLAS threads (default min(4, cores))")
+    p.add_argument("--warmup-steps", type=non_negative_int, default=0, help="linear learning-rate warm-up")
+    p.add_argument("--schedule", choices=("constant", "cosine"), default="constant", help="after the warm-up")
+    p.add_argument("--grad-clip", type=float, default=1.0, help="gradient-norm clip")
+    p.add_argument("--amp", choices=("off", "bf16"), default="off", help="bf16 autocast of the learned stages")
+    p.add_argument("--cache-dir", default="runs/cache/train", help="per-frame extractor/grouping cache ('none': off)")
+    p.add_argument("--log", help="JSON-lines log, one record per step (default: <out>.log.jsonl)")
+    p.add_argument("--checkpoint-every", type=positive_int, default=250)
+    p.add_argument("--validate-every", type=positive_int, default=1000)
+    p.add_argument("--val-frames", type=positive_int, default=20)
+    p.add_argument("--seed", type=int, default=0, help="initial weights, frame order and transforms")
+    p.add_argument("--device", default="auto", help="auto, cpu, cuda, cuda:N")
+    p.add_argument("--threads", type=positive_int, default=None, help="torch, OpenCV and BLAS threads")
     p.add_argument("--quiet", action="store_true")
+
+
+def positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive integer")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected 0 or a positive integer")
+    return value
 
 
 def _combination(registry, args: argparse.Namespace):
@@ -40,36 +63,52 @@ def _combination(registry, args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
+    import torch
     from tqdm import tqdm
 
+    from ..devices import resolve_device
     from ..pipeline import Pipeline
     from ..plugins import default_registry
     from ..runs.environment import fix_threads
     from ..training import TrainConfig, Trainer, training_meta
 
+    device = resolve_device(args.device)
     fix_threads(args.threads)
     registry = default_registry()
+    torch.manual_seed(args.seed)  # initial weights: two runs with one seed start (and end) alike
     pipeline = Pipeline.build(registry, _combination(registry, args))
     data_conf = {"root": args.data_root} if args.data_root else {}
     train_set = registry.dataset(args.dataset)(args.split, data_conf)
     val_set = None if args.val_split == "none" else registry.dataset(args.dataset)(args.val_split, data_conf)
     config = TrainConfig(
         steps=args.steps,
+        batch_size=args.batch_size,
+        accumulate=args.accumulate,
         lr=args.lr,
+        warmup_steps=args.warmup_steps,
+        schedule=args.schedule,
+        grad_clip=args.grad_clip,
         checkpoint_every=args.checkpoint_every,
         validate_every=args.validate_every,
         val_frames=args.val_frames,
         seed=args.seed,
-        device=args.device,
+        device=str(device),
+        workers=args.workers,
+        amp=args.amp,
+        cache_dir=None if args.cache_dir == "none" else args.cache_dir,
     )
-    trainer = Trainer(pipeline, train_set, val_set, Path(args.out), config)
+    out = Path(args.out)
+    trainer = Trainer(pipeline, train_set, val_set, out, config)
     resumed = trainer.resume()
-    print(
-        f"training {pipeline.combination.label} ({pipeline.model_size_mb():.2f} MB) on {args.dataset}/{args.split}"
-        f"{f', resumed at step {trainer.step}' if resumed else ''}",
-        file=sys.stderr,
-    )
-    bar = tqdm(total=config.steps, initial=trainer.step, disable=args.quiet, file=sys.stderr, unit="step")
+    main = trainer.dist.main
+    if main:
+        print(
+            f"training {pipeline.combination.label} ({pipeline.model_size_mb():.2f} MB) on {args.dataset}/"
+            f"{args.split}, effective batch {trainer.dist.world * config.accumulate * config.batch_size}"
+            f"{f'; {resumed}' if resumed else ''}",
+            file=sys.stderr,
+        )
+    bar = tqdm(total=config.steps, initial=trainer.step, disable=args.quiet or not main, file=sys.stderr, unit="step")
 
     def report(step: int, terms: dict) -> None:
         if any(k.startswith("val_") for k in terms):
@@ -81,7 +120,9 @@ def run(args: argparse.Namespace) -> int:
         bar.update(step - bar.n)
         bar.set_postfix({k: f"{v:.3f}" for k, v in terms.items() if isinstance(v, float)}, refresh=False)
 
-    trainer.run(training_meta(train_set, config), report)
+    log = Path(args.log) if args.log else out.with_name(out.name + ".log.jsonl")
+    trainer.run(training_meta(train_set, config, trainer.dist.world), report, log=log)
     bar.close()
-    print(f"checkpoint: {args.out} (step {trainer.step}); validation: {trainer.validation}", file=sys.stderr)
+    if main:
+        print(f"checkpoint: {args.out} (step {trainer.step}); validation: {trainer.validation}", file=sys.stderr)
     return 0

@@ -1,0 +1,133 @@
+"""Batched training: how the learned stages of a combination take several frames at once.
+
+A learned stage that trains in batches implements, besides its per-frame `__call__`:
+- `prepare(frame, <its keypoints>, cache=None) -> dict[str, Tensor]`: one frame's network inputs, computed on the
+  CPU (in a DataLoader worker). `cache` is a per-frame dict kept on disk across steps and runs, for what does not
+  depend on the protocol's transform (e.g. point grouping); the stage fills it, the caller persists it.
+- a torch `forward` on those inputs collated into a padded batch (a leading B), with keypoint masks where the
+  stage needs them: encoders `forward(inputs) -> [B x M x D]`, exchangers `forward(inputs, d2, d3, mask2d, mask3d)`,
+  trainable matchers `batch_loss(inputs, Features, mask2d, mask3d) -> (loss, terms)`, the mean over the frames.
+A stage without `prepare` still trains: `PerFrame` runs it frame by frame inside the batch (slower, same result).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+
+from .components import Component
+from .types import Features, Frame, Keypoints2D, Keypoints3D
+
+LEARNED_KINDS = ("encoder2d", "encoder3d", "exchanger", "matcher")
+PER_FRAME = "_per_frame"  # the prepared entry of a stage without `prepare`: (frame, kp2d, kp3d), collated as a list
+
+
+def pad_stack(tensors: Sequence[torch.Tensor], value: float = 0) -> torch.Tensor:
+    """tensors of one rank, each padded at the end of every dim to the largest, stacked -> [B x ...]."""
+    shape = [max(sizes) for sizes in zip(*(t.shape for t in tensors), strict=True)]
+    padded = []
+    for t in tensors:
+        pad = [p for dim in reversed(range(t.dim())) for p in (0, shape[dim] - t.shape[dim])]
+        padded.append(F.pad(t, pad, value=value) if any(pad) else t)
+    return torch.stack(padded)
+
+
+def collate(items: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """prepared dicts of the frames of a batch -> one dict: tensors padded and stacked, anything else listed."""
+    out: dict[str, Any] = {}
+    for key in items[0]:
+        values = [item[key] for item in items]
+        if isinstance(values[0], torch.Tensor):
+            out[key] = pad_stack(values)
+        elif isinstance(values[0], Mapping):
+            out[key] = collate(values)
+        else:
+            out[key] = values
+    return out
+
+
+def length_mask(lengths: torch.Tensor, size: int) -> torch.Tensor:
+    """[B] lengths -> [B x size] bool, True for the first lengths[b] entries."""
+    return torch.arange(size, device=lengths.device)[None] < lengths[:, None]
+
+
+def to_device(batch: Any, device: torch.device, non_blocking: bool = False) -> Any:
+    """tensors of a (nested) batch moved to device; lists of frames stay where they are."""
+    if isinstance(batch, torch.Tensor):
+        return batch.to(device, non_blocking=non_blocking)
+    if isinstance(batch, Mapping):
+        return {k: to_device(v, device, non_blocking) for k, v in batch.items()}
+    return batch
+
+
+def batches_natively(stage: Component) -> bool:
+    return callable(getattr(stage, "prepare", None))
+
+
+def prepare_stage(
+    kind: str, stage: Component, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, cache: dict | None
+) -> dict[str, Any]:
+    """one frame's inputs for the stage of this kind (the frame itself for a stage without `prepare`)."""
+    if not batches_natively(stage):
+        return {PER_FRAME: (frame if kind == "matcher" else frame.without_ground_truth(), kp2d, kp3d)}
+    if kind == "encoder2d":
+        return stage.prepare(frame, kp2d, cache=cache)
+    if kind == "encoder3d":
+        return stage.prepare(frame, kp3d, cache=cache)
+    return stage.prepare(frame, kp2d, kp3d, cache=cache)
+
+
+class BatchForward:
+    """The learned stages of a pipeline applied to a collated batch: features, then the matcher's mean loss."""
+
+    def __init__(self, stages: Mapping[str, Component]) -> None:
+        self.stages = {k: stages[k] for k in LEARNED_KINDS if k in stages}
+
+    def __call__(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
+        inputs, (m2, m3) = batch["inputs"], batch["masks"]
+        d2 = self._encode("encoder2d", inputs, m2)
+        d3 = self._encode("encoder3d", inputs, m3)
+        exchanger = self.stages.get("exchanger")
+        if exchanger is not None and batches_natively(exchanger):
+            d2, d3 = torch.nn.Module.__call__(exchanger, inputs["exchanger"], d2, d3, m2, m3)
+        elif exchanger is not None:
+            d2, d3 = _per_frame_exchange(exchanger, inputs["exchanger"][PER_FRAME], d2, d3, m2, m3)
+        matcher, features = self.stages["matcher"], Features(d2, d3)
+        if batches_natively(matcher):
+            return matcher.batch_loss(inputs["matcher"], features, m2, m3)
+        return _per_frame_loss(matcher, inputs["matcher"][PER_FRAME], features, m2, m3)
+
+    def _encode(self, kind: str, inputs: Mapping[str, Any], mask: torch.Tensor) -> torch.Tensor | None:
+        stage = self.stages.get(kind)
+        if stage is None:
+            return None
+        if batches_natively(stage):
+            return torch.nn.Module.__call__(stage, inputs[kind])
+        frames = inputs[kind][PER_FRAME]
+        return pad_stack([stage(f, kp2d if kind == "encoder2d" else kp3d) for f, kp2d, kp3d in frames])
+
+
+def _unpad(features: torch.Tensor | None, mask: torch.Tensor, b: int) -> torch.Tensor | None:
+    return None if features is None else features[b, : int(mask[b].sum())]
+
+
+def _per_frame_exchange(stage, frames, d2, d3, m2, m3) -> tuple[torch.Tensor, torch.Tensor]:
+    out = [
+        stage(frame, kp2d, kp3d, Features(_unpad(d2, m2, b), _unpad(d3, m3, b)))
+        for b, (frame, kp2d, kp3d) in enumerate(frames)
+    ]
+    return pad_stack([o.desc2d for o in out]), pad_stack([o.desc3d for o in out])
+
+
+def _per_frame_loss(matcher, frames, features: Features, m2, m3) -> tuple[torch.Tensor, dict[str, float]]:
+    losses, terms = [], []
+    for b, (frame, kp2d, kp3d) in enumerate(frames):
+        unpadded = Features(_unpad(features.desc2d, m2, b), _unpad(features.desc3d, m3, b))
+        loss, t = matcher.loss(frame, kp2d, kp3d, unpadded)
+        losses.append(loss)
+        terms.append(t)
+    mean = {k: sum(float(t[k]) for t in terms) / len(terms) for k in terms[0]}
+    return torch.stack(losses).mean(), mean
