@@ -42,6 +42,15 @@ def test_lists_the_six_real_frames_sorted(dataset):
     assert KittiOdometry("all", {"root": str(KITTI), "sequences": [1]}).frame_ids() == ["01/000000"]
 
 
+def test_splits_are_whole_sequences_and_validation_never_comes_from_the_test_sequences(shared_data):
+    real = {"root": str(shared_data / "kitti_real")}  # 04 (a benchmark train sequence) and 26 (a raw drive)
+    assert KittiOdometry("train", real).sequences() == ["04"] and len(KittiOdometry("train", real).frame_ids()) == 17
+    assert KittiOdometry("val", real).sequences() == ["26"] and len(KittiOdometry("val", real).frame_ids()) == 20
+    assert KittiOdometry("trainval", real).sequences() == ["04"]
+    assert KittiOdometry("all", real).sequences() == ["04", "26"]
+    assert not KittiOdometry("val", {"root": str(KITTI)}).sequences()  # 00 and 01 only: no 08, nothing outside 00-21
+
+
 def test_frame_contents(frames):
     for fid, f in frames.items():
         assert f.dataset == "kitti" and f.frame_id == fid and f.match_radius_px == 3.0

@@ -20,9 +20,12 @@ from .images import read_image
 from .scanlines import recover_rings
 
 SPLIT_SEQUENCES: dict[str, tuple[str, ...]] = {
-    "train": tuple(f"{i:02d}" for i in range(9)),  # 00-08, as CorrI2P, DeepI2P, VP2P-Match and EdgeRegNet train
+    "trainval": tuple(f"{i:02d}" for i in range(9)),  # 00-08, as CorrI2P, DeepI2P, VP2P-Match and EdgeRegNet train
+    "train": tuple(f"{i:02d}" for i in range(8)),  # 00-07: trainval less the validation sequence
+    "val": ("08",),  # drawn from 00-08 by whole sequence (frames 0.1 s apart would leak), never from 09-10
     "test": ("09", "10"),
 }
+BENCHMARK_SEQUENCES = frozenset(f"{i:02d}" for i in range(22))  # KITTI Odometry's 00-21
 
 
 def _parse_calib(path: Path) -> dict[str, np.ndarray]:
@@ -131,10 +134,12 @@ def sequence_stems(sequence_dir: Path, camera: int = 2) -> list[str]:
 
 
 class KittiOdometry(Dataset):
-    """KITTI Odometry with the peers' split: train = sequences 00-08, test = 09-10; "all" = every sequence on disk."""
+    """KITTI Odometry by sequence: trainval = 00-08 (what the peers train on), split into train = 00-07 and val = 08
+    plus any sequence outside the benchmark's 00-21 (e.g. a raw drive: kitti_real's 26); test = 09-10; "all" = every
+    sequence on disk."""
 
     name = "kitti"
-    splits = ("train", "test", "all")
+    splits = ("train", "val", "trainval", "test", "all")
     default_conf: ClassVar[dict[str, Any]] = {
         "root": None,  # folder holding sequences/; None reads I2PBENCH_KITTI_ROOT
         "camera": 2,  # 2 (left colour) or 3 (right colour)
@@ -164,9 +169,11 @@ class KittiOdometry(Dataset):
             if absent:
                 raise DataError(f"dataset 'kitti': requested sequences not found: {', '.join(absent)}")
             return sorted(set(names))
+        on_disk = sorted(p.name for p in base.iterdir() if p.is_dir())
         if self.split == "all":
-            return sorted(p.name for p in base.iterdir() if p.is_dir())
-        return [s for s in SPLIT_SEQUENCES[self.split] if (base / s).is_dir()]
+            return on_disk
+        extra = [s for s in on_disk if s not in BENCHMARK_SEQUENCES] if self.split == "val" else []
+        return [s for s in SPLIT_SEQUENCES[self.split] if (base / s).is_dir()] + extra
 
     def frame_ids(self) -> list[str]:
         if self._ids is None:
