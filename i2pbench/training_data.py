@@ -77,8 +77,15 @@ class TrainingSamples(torch.utils.data.Dataset):
     """Item i: one training frame under a fresh protocol transform, extracted and prepared for every learned stage."""
 
     def __init__(
-        self, stages: Mapping[str, Component], dataset: Dataset, seed: int, cache_root: str | Path | None = None
+        self,
+        stages: Mapping[str, Component],
+        dataset: Dataset,
+        seed: int,
+        cache_root: str | Path | None = None,
+        stage_cache: bool = True,
     ) -> None:
+        """`stage_cache` False recomputes the stages' transform-free inputs (grouping) every time: the old loop."""
+        self.stage_cache = stage_cache
         self.stages = {k: stages[k] for k in (*EXTRACTOR_KINDS, *LEARNED_KINDS) if k in stages}
         self.dataset, self.seed = dataset, seed
         self.frame_ids = dataset.frame_ids()
@@ -121,6 +128,8 @@ class TrainingSamples(torch.utils.data.Dataset):
         return {"index": index, "inputs": inputs, "n2d": len(kp2d), "n3d": len(kp3d)}
 
     def _prepare(self, kind: str, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D) -> dict[str, Any]:
+        if not self.stage_cache:
+            return prepare_stage(kind, self.stages[kind], frame, kp2d, kp3d, None)
         cache = self.stage_caches[kind]
         stored = cache.get(frame.frame_id)
         entry = dict(stored or {})
