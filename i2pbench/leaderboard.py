@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from .components import STAGE_ORDER
-from .metrics import summarize
+from .metrics import success, summarize
 from .protocol import Protocol
 
 GROUP = ["dataset", "split", "combination", "weights"]
@@ -22,6 +22,8 @@ ACC, RTE, RRE = "Acc. (%) ↑", "RTE (m) ↓", "RRE (°) ↓"
 RTE_MEAN, RRE_MEAN = "rte_mean", "rre_mean"
 MODEL_SIZE = "model size (MB) ↓"
 INLIER_RATIO, TRUE_MATCHES = "inlier ratio (%) ↑", "true matches median ↑"
+CHANCE, ACC_SKILL = "chance successes", "Acc. with true matches (%) ↑"
+MIN_TRUE_MATCHES = 4  # fewer true matches than a PnP needs: a success on such a frame is luck, not registration
 LATENCY_PREFIX = "latency"
 LATENCY_MEDIAN, LATENCY_P90 = "latency median (ms) ↓", "latency p90 (ms) ↓"
 
@@ -66,6 +68,17 @@ def _match_quality(records: pd.DataFrame) -> dict[str, float]:
     }
 
 
+def _chance(records: pd.DataFrame, protocol: Protocol) -> dict[str, float]:
+    """Successes on frames with fewer than MIN_TRUE_MATCHES true matches (a solver cannot have found the pose from
+    them), and Acc. counting only the other successes; NaN for records written before true matches were counted."""
+    if "n_true_matches" not in records:
+        return {CHANCE: np.nan, ACC_SKILL: np.nan}
+    won = success(records["rte_m"], records["rre_deg"], protocol).to_numpy()
+    true = records["n_true_matches"].to_numpy(dtype=float)
+    lucky = won & ~(true >= MIN_TRUE_MATCHES)  # NaN (the matcher never ran) counts as no true match
+    return {CHANCE: int(lucky.sum()), ACC_SKILL: round(100.0 * float((won & ~lucky).mean()), 2)}
+
+
 def _row(records: pd.DataFrame, protocol: Protocol) -> dict:
     stats = summarize(records["rte_m"], records["rre_deg"], protocol)
     first = records.iloc[0]
@@ -85,6 +98,7 @@ def _row(records: pd.DataFrame, protocol: Protocol) -> dict:
         "rre_std": stats["rre_std"],
         "geodesic median (°) ↓": float(np.nanmedian(geo)) if geo.notna().any() else np.nan,
         **_match_quality(records),
+        **_chance(records, protocol),
         MODEL_SIZE: round(float(first["model_size_mb"]), 3),
         **_latency(records),
     }
@@ -115,9 +129,12 @@ DISPLAY = [
     "frames",
     "failures",
     ACC,
+    CHANCE,
+    ACC_SKILL,
     RTE,
     RRE,
     INLIER_RATIO,
+    TRUE_MATCHES,
     MODEL_SIZE,
     LATENCY_MEDIAN,
     LATENCY_P90,

@@ -10,6 +10,8 @@ from i2pbench import leaderboard
 from i2pbench.components import STAGE_ORDER
 from i2pbench.leaderboard import (
     ACC,
+    ACC_SKILL,
+    CHANCE,
     INLIER_RATIO,
     LATENCY_MEDIAN,
     LATENCY_P90,
@@ -92,6 +94,20 @@ def test_inlier_ratio_averages_frames_with_matches_and_true_matches_take_the_med
 
 def test_records_without_match_counts_give_nan_match_quality(board):
     assert board[INLIER_RATIO].isna().all() and board[TRUE_MATCHES].isna().all()
+    assert board[CHANCE].isna().all() and board[ACC_SKILL].isna().all()
+
+
+def test_a_success_with_fewer_than_four_true_matches_is_counted_as_chance():
+    # frames: success with 10 true matches; successes with 3 and 0 (chance); a success whose matcher never ran
+    # (NaN: chance); a failure with 12 true matches
+    records = _records("m", [0.1, 0.2, 0.3, 0.4, 9.0], [1.0, 1.0, 1.0, 1.0, 20.0], [0.01] * 5)
+    records["n_matches"] = [40, 30, 20, 0, 50]
+    records["n_true_matches"] = [10.0, 3.0, 0.0, math.nan, 12.0]
+    row = leaderboard.build(records).iloc[0]
+    assert row[ACC] == 80.0  # 4 of 5 frames inside RRE < 5 and RTE < 2: the peers' Acc., luck included
+    assert row[CHANCE] == 3
+    assert row[ACC_SKILL] == 20.0  # only frame 0 registered from true matches
+    assert CHANCE in leaderboard.to_markdown(leaderboard.build(records)).splitlines()[0]
 
 
 def test_files_round_trip_and_markdown_has_arrows(board, tmp_path):
