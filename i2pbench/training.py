@@ -150,6 +150,7 @@ class Trainer:
         self.samples = TrainingSamples(pipeline.stages, train_set, config.seed, config.cache_dir)
         self.step, self.seconds, self.validation = 0, 0.0, {}
         self.best: float | None = None
+        self.lineage: list[dict[str, Any]] = []  # earlier phases on other data (see Checkpoint.lineage)
         self.notes: list[str] = []
 
     def sample(self, index: int) -> Frame:
@@ -172,7 +173,14 @@ class Trainer:
         self.seconds = float(checkpoint.meta.get("train_seconds", 0.0))
         self.validation = checkpoint.meta.get("validation", {})
         self.best = checkpoint.meta.get("best_acc")
+        self.lineage = checkpoint.lineage
+        before = checkpoint.meta.get("trained_on", {})
+        if before and _data_of(before) != _data_of(self.train_set.identity()):  # fine-tuning on other data
+            self.lineage.append({**_data_of(before), "steps": self.step})
+            self.best = None  # a validation of the new phase is not comparable with the old one's
         note = self._load_optimizer()
+        if self.lineage and self.lineage[-1]["steps"] == self.step:
+            note += f"; fine-tuning what was trained on {checkpoint.trained_on}"
         self.notes.append(note)
         return note
 
@@ -269,8 +277,7 @@ class Trainer:
 
     def save(self, meta: dict[str, Any]) -> None:
         """checkpoint, then the resume file that names the checkpoint's bytes; `best` when val Acc. improved."""
-        extra = {"steps": self.step, "train_seconds": round(self.seconds, 1), "validation": self.validation}
-        save_checkpoint(self.out, self.pipeline, best_acc=self.best, **extra, **meta)
+        save_checkpoint(self.out, self.pipeline, best_acc=self.best, **self._progress(), **meta)
         state = {
             "optimizer": self.optimizer.state_dict(),
             "step": self.step,
@@ -281,6 +288,14 @@ class Trainer:
         torch.save(state, tmp)
         os.replace(tmp, _resume_path(self.out))
 
+    def _progress(self) -> dict[str, Any]:
+        return {
+            "steps": self.step,
+            "train_seconds": round(self.seconds, 1),
+            "validation": self.validation,
+            "lineage": self.lineage,
+        }
+
     def _validate_and_keep_best(self, meta: dict[str, Any], report: Report | None) -> None:
         self.validation = self.validate()
         if report and self.validation:
@@ -288,8 +303,7 @@ class Trainer:
         acc = self.validation.get("acc")
         if acc is not None and (self.best is None or acc > self.best):
             self.best = acc
-            extra = {"steps": self.step, "train_seconds": round(self.seconds, 1), "validation": self.validation}
-            save_checkpoint(best_path(self.out), self.pipeline, best_acc=acc, **extra, **meta)
+            save_checkpoint(best_path(self.out), self.pipeline, best_acc=acc, **self._progress(), **meta)
 
     def run(self, meta: dict[str, Any], report: Report | None = None, log: Path | None = None) -> None:
         c = self.config
@@ -327,6 +341,11 @@ class Trainer:
             dist.init_process_group("nccl" if self.device.type == "cuda" else "gloo")
         ids = [self.device.index] if self.device.type == "cuda" else None
         return torch.nn.parallel.DistributedDataParallel(self.model, device_ids=ids)
+
+
+def _data_of(identity: dict[str, Any]) -> dict[str, Any]:
+    """what names the training data (dataset, split, root), without counts or configs."""
+    return {k: identity.get(k) for k in ("dataset", "split", "root")}
 
 
 def _one_thread(_: int) -> None:

@@ -38,8 +38,17 @@ class Checkpoint:
 
     @property
     def trained_on(self) -> str:
+        """`dataset/split, N steps`, after the stages it was fine-tuned from: `synthetic/train 6500 + kitti/train,
+        7000 steps` (steps are cumulative: the last figure is the checkpoint's total)."""
         data = self.meta.get("trained_on", {})
-        return f"{data.get('dataset', '?')}/{data.get('split', '?')}, {self.meta.get('steps', '?')} steps"
+        here = f"{data.get('dataset', '?')}/{data.get('split', '?')}, {self.meta.get('steps', '?')} steps"
+        earlier = [f"{d.get('dataset', '?')}/{d.get('split', '?')} {d.get('steps', '?')}" for d in self.lineage]
+        return " + ".join([*earlier, here])
+
+    @property
+    def lineage(self) -> list[dict[str, Any]]:
+        """the data of earlier training phases this checkpoint continued from, oldest first."""
+        return list(self.meta.get("lineage", []))
 
 
 def file_digest(path: Path) -> str:

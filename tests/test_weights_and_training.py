@@ -265,3 +265,17 @@ def test_ddp_on_two_gloo_processes_equals_one_process_with_the_same_total_batch(
     assert load_checkpoint(tmp_path / "ddp.pt").meta["steps"] == 3
     assert all(torch.allclose(ddp[k], one[k], atol=1e-6) for k in ddp)
     assert not torch.allclose(ddp["layer.weight"], alone["layer.weight"], atol=1e-3)  # ranks really were averaged
+
+
+def test_fine_tuning_on_other_data_keeps_the_earlier_phase_in_the_checkpoint_identity(registry, tmp_path):
+    first = _trainer(registry, tmp_path / "w.pt", steps=2)
+    first.run(training_meta(Clean("test"), first.config))
+    config = TrainConfig(steps=3, lr=0.05, checkpoint_every=1, validate_every=1000, seed=1)
+    other = Clean("test", {"root": "/data/real"})
+    tuned = Trainer(_pipeline(registry), other, None, tmp_path / "w.pt", config)
+    assert tuned.resume() and tuned.step == 2
+    tuned.run(training_meta(other, config))
+    checkpoint = load_checkpoint(tmp_path / "w.pt")
+    assert checkpoint.lineage == [{"dataset": "toy", "split": "test", "root": "", "steps": 2}]
+    assert checkpoint.trained_on == "toy/test 2 + toy/test, 3 steps"
+    assert checkpoint.meta["trained_on"]["root"] == "/data/real"
