@@ -263,7 +263,7 @@ def test_ddp_on_two_gloo_processes_equals_one_process_with_the_same_total_batch(
     varied_trainer(tmp_path / "alone.pt", batch_size=1).run({})
     ddp, one, alone = (_state(tmp_path / f) for f in ("ddp.pt", "one.pt", "alone.pt"))
     assert load_checkpoint(tmp_path / "ddp.pt").meta["steps"] == 3
-    assert all(torch.allclose(ddp[k], one[k], atol=1e-6) for k in ddp)
+    assert all(torch.allclose(ddp[k], one[k], atol=1e-6) for k in ddp)  # measured: equal; one frame alone: 0.097 off
     assert not torch.allclose(ddp["layer.weight"], alone["layer.weight"], atol=1e-3)  # ranks really were averaged
 
 
