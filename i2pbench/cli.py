@@ -12,8 +12,13 @@ from typing import NoReturn
 from .errors import I2PBenchError
 from .progress import set_quiet
 
-COMMANDS = ("plugins", "run", "train", "diagnose", "data", "compare", "viz", "report")
+COMMANDS = ("plugins", "run", "train", "diagnose", "domain-gap", "data", "compare", "viz", "report")
 PIPELINE_COMMANDS = ("run", "train", "viz")  # those that build pipelines, which read the stage time limit
+
+
+def command_module(name: str) -> str:
+    """A command's module: `domain-gap` lives in i2pbench.commands.domain_gap (a module name has no hyphen)."""
+    return f"i2pbench.commands.{name.replace('-', '_')}"
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -28,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="i2pbench", description="Benchmark image-to-LiDAR registration.")
     sub = parser.add_subparsers(dest="command", required=True)
     for name in COMMANDS:
-        importlib.import_module(f"i2pbench.commands.{name}").add_parser(sub)
+        importlib.import_module(command_module(name)).add_parser(sub)
     return parser
 
 
@@ -50,7 +55,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command in PIPELINE_COMMANDS:
             check_stage_timeout()
-        return importlib.import_module(f"i2pbench.commands.{args.command}").run(args)
+        return importlib.import_module(command_module(args.command)).run(args)
     except I2PBenchError as exc:
         print(f"i2pbench: error: {exc}", file=sys.stderr)
         return 2
