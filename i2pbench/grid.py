@@ -34,7 +34,7 @@ def parse_conf_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
 
 
 def base_combinations(registry: Registry, preset: str | None, stages_named: bool = False) -> list[dict[str, str]]:
-    """The preset's combinations, or the "default" preset's when none is named.
+    """The preset's combinations (several presets comma-separated: their union), or the "default" preset's.
 
     With no preset and no "default" registered, a command that names its stages (`stages_named`) starts from an
     empty base, so `--extractor lsd --extractor3d depth ...` works before any default pipeline exists.
@@ -46,7 +46,12 @@ def base_combinations(registry: Registry, preset: str | None, stages_named: bool
             "no 'default' preset is registered; name the stages or a --preset "
             f"(known: {', '.join(sorted(registry.presets)) or 'none'})"
         )
-    return [dict(c) for c in registry.preset(preset or "default").combinations]
+    combinations: list[dict[str, str]] = []
+    for name in (preset or "default").split(","):  # "a,b": the union of presets, each combination once
+        for combination in registry.preset(name.strip()).combinations:
+            if dict(combination) not in combinations:
+                combinations.append(dict(combination))
+    return combinations
 
 
 def expand(

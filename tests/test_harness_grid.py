@@ -80,6 +80,17 @@ def test_named_stages_need_no_default_preset(monkeypatch):
         base_combinations(registry, None)
 
 
+def test_comma_separated_presets_run_their_union_once_each():
+    registry = default_registry()
+    baselines = base_combinations(registry, "baselines")
+    exchange = base_combinations(registry, "exchange-ablation")
+    union = base_combinations(registry, "baselines, exchange-ablation")
+    assert len(exchange) == 2 and all(c in baselines for c in exchange)  # both exchange rows are baselines rows
+    assert union == baselines  # so the union adds nothing and keeps the order
+    both = base_combinations(registry, "exchange-ablation,edge-ablation")
+    assert both[:2] == exchange and len(both) == 2 + 6 - 1  # edge-ablation's lsd x d+r row is exchange's attention
+
+
 def test_data_conf_nests_dotted_keys():
     assert parse_data_conf(["frames.test=3", "seed=1", "root=/x"]) == {"frames": {"test": 3}, "seed": 1, "root": "/x"}
 
