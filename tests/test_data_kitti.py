@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import shutil
-import time
 from pathlib import Path
 
 import numpy as np
@@ -117,12 +116,14 @@ def test_rings_keep_scan_order(frames):
             assert np.diff(phase[f.ring == r]).min() > -1e-3
 
 
-def test_ring_recovery_takes_a_few_ms(frames):
-    points = frames["00/000001"].points
-    start = time.perf_counter()
-    for _ in range(10):
-        recover_rings(points)
-    assert (time.perf_counter() - start) / 10 < 0.05  # measured about 2 ms here
+def test_every_real_scan_has_its_64_rings(shared_data):
+    """sequence 04's lasers step back by up to 0.22 rad inside a sweep: a tolerance that cuts them gives 134-627."""
+    scans = sorted((shared_data / "kitti_real" / "sequences").glob("*/velodyne/*.bin"))
+    assert len(scans) == 37
+    for path in scans:
+        ring = recover_rings(np.fromfile(path, np.float32).reshape(-1, 4)[:, :3])
+        assert int(ring.max()) + 1 == 64, path
+    assert recover_rings(np.fromfile(scans[0], np.float32).reshape(-1, 4)[:, :3], tol=0.01).max() + 1 > 100
 
 
 def _ring_points(azimuth_deg: np.ndarray, z: float) -> np.ndarray:
