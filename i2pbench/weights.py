@@ -168,14 +168,24 @@ def apply_checkpoint(pipeline: Pipeline, checkpoint: Checkpoint) -> None:
     pipeline.weights_meta = {**checkpoint.meta, "trained_on": checkpoint.trained_on}  # the summary string wins
 
 
-def select_checkpoint(pipeline: Pipeline, choice: str, shipped: list[str]) -> Checkpoint | None:
-    """Resolve `--weights`: "untrained", "auto" (a shipped checkpoint trained with exactly these stages), or a path."""
+def select_checkpoint(
+    pipeline: Pipeline, choice: str, shipped: list[str], dataset: str | None = None
+) -> Checkpoint | None:
+    """Resolve `--weights`: "untrained", "auto" (a shipped checkpoint trained with exactly these stages), or a path.
+
+    Among shipped checkpoints that fit, "auto" prefers one whose last training phase was on `dataset` (e.g. weights
+    fine-tuned on KITTI for a KITTI run), then the one with the fewest phases (trained on one dataset from scratch).
+    """
     if not pipeline.learned_modules() or choice == "untrained":
         return None
     if choice != "auto":
         return load_checkpoint(choice)
-    for path in shipped:
-        checkpoint = load_checkpoint(path)
-        if mismatch(checkpoint, pipeline, strict_extractors=True) is None:
-            return checkpoint
-    return None
+    fitting = [c for c in map(load_checkpoint, shipped) if mismatch(c, pipeline, strict_extractors=True) is None]
+    if not fitting:
+        return None
+
+    def preference(checkpoint: Checkpoint) -> tuple[bool, int]:
+        last = checkpoint.meta.get("trained_on", {}).get("dataset")
+        return (dataset is None or last != dataset, len(checkpoint.lineage))
+
+    return min(fitting, key=preference)  # min is stable: ties keep the registration order

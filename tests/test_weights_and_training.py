@@ -279,3 +279,20 @@ def test_fine_tuning_on_other_data_keeps_the_earlier_phase_in_the_checkpoint_ide
     assert checkpoint.lineage == [{"dataset": "toy", "split": "test", "root": "", "steps": 2}]
     assert checkpoint.trained_on == "toy/test 2 + toy/test, 3 steps"
     assert checkpoint.meta["trained_on"]["root"] == "/data/real"
+
+
+def test_auto_weights_prefer_a_checkpoint_trained_on_the_run_s_dataset(registry, tmp_path):
+    pipeline = _pipeline(registry)
+    general = save_checkpoint(tmp_path / "a-general.pt", pipeline, steps=5, trained_on={"dataset": "synthetic"})
+    tuned = save_checkpoint(
+        tmp_path / "b-tuned.pt",
+        pipeline,
+        steps=9,
+        trained_on={"dataset": "kitti"},
+        lineage=[{"dataset": "synthetic", "split": "train", "root": "", "steps": 5}],
+    )
+    shipped = [str(general), str(tuned)]
+    assert select_checkpoint(pipeline, "auto", shipped, "kitti").path == tuned
+    assert select_checkpoint(pipeline, "auto", shipped, "synthetic").path == general
+    assert select_checkpoint(pipeline, "auto", shipped, "nuscenes").path == general  # fewest phases
+    assert select_checkpoint(pipeline, "auto", shipped[::-1]).path == general

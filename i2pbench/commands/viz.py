@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
         raise PluginError(f"viz draws one combination, these options give {len(combinations)}: {labels}")
     dataset = open_dataset(registry, args)
     frame_id = resolve_frame(dataset.frame_ids(), args.frame)
-    job = prepare(registry, combinations, args.weights, device)[0]
+    job = prepare(registry, combinations, args.weights, device, dataset.name)[0]
     frame = Protocol(seed=args.seed).apply(dataset.load(frame_id))
     result = trace(job.pipeline, frame)
     out = args.out or f"viz/{dataset.name}-{dataset.split}-{frame_id.replace('/', '-')}.png"

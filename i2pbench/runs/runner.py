@@ -55,14 +55,19 @@ class Job:
 
 
 def prepare(
-    registry: Registry, combinations: Sequence[Combination], weights: str = "auto", device: str = "cpu"
+    registry: Registry,
+    combinations: Sequence[Combination],
+    weights: str = "auto",
+    device: str = "cpu",
+    dataset: str | None = None,
 ) -> list[Job]:
-    """Build every pipeline before any frame runs, so an incompatible combination is refused up front."""
+    """Build every pipeline before any frame runs, so an incompatible combination is refused up front; `dataset`
+    (a name) lets `--weights auto` prefer shipped weights trained on it."""
     shipped = [path for path, _ in registry.weights]
     jobs = []
     for combination in combinations:
         pipeline = _build(registry, combination)
-        checkpoint = select_checkpoint(pipeline, weights, shipped)
+        checkpoint = select_checkpoint(pipeline, weights, shipped, dataset)
         if checkpoint is not None:
             apply_checkpoint(pipeline, checkpoint)
         jobs.append(Job(combination, pipeline.to(device).eval(), str(device)))
@@ -218,7 +223,7 @@ def run_grid(
     invocation: str = "",
 ) -> pd.DataFrame:
     """Run every combination over the split; returns this grid's per-frame records (cached ones included)."""
-    jobs = prepare(registry, combinations, weights, device)
+    jobs = prepare(registry, combinations, weights, device, dataset.name)
     frame_ids = list(frame_ids if frame_ids is not None else dataset.frame_ids())
     records: list[dict[str, Any]] = []
     for job in jobs:
