@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# Regenerates every committed leaderboard under leaderboards/ (the CI golden ones have gate.sh --update) from the
+# shipped weights, on the embedded synthetic test split and the real frames in ../shared/data. Review the diff.
+#   bash leaderboards/make.sh              all of them (about an hour on 2 busy cores)
+#   bash leaderboards/make.sh kitti-real   only the boards whose name contains this word
+set -euo pipefail
+cd "$(dirname "$0")/.."
+DATA=${I2PBENCH_SHARED_DATA:-../shared/data}
+RUNS=${I2PBENCH_MAKE_RUNS:-runs/make-leaderboards}  # per-frame results: a rerun only computes what changed
+ONLY=${1:-}
+PRESETS=baselines,edge-ablation,exchange-ablation  # every row of the paper's tables and the baselines, once each
+
+board() {  # NAME, then the run options
+    local name=$1
+    shift
+    case "$name" in *"$ONLY"*) ;; *) return 0 ;; esac
+    echo "== $name" >&2
+    .venv/bin/i2pbench run --runs-dir "$RUNS" --threads 1 --quiet --out "leaderboards/$name" "$@" >/dev/null
+}
+
+board synthetic-test-edgeregnet --preset baselines --dataset synthetic --split test
+board kitti-sample-classic --grid leaderboards/kitti-sample-classic.yaml --dataset kitti --split all \
+    --data-root "$DATA/kitti_odometry"
+board kitti-sample-edgeregnet --preset "$PRESETS" --dataset kitti --split all --data-root "$DATA/kitti_odometry"
+# kitti_real by whole sequence: train = 04 (a highway, KITTI Odometry), val = 26 (city traffic, a raw drive)
+board kitti-real-04 --preset "$PRESETS" --dataset kitti --split train --data-root "$DATA/kitti_real"
+board kitti-real-26 --preset "$PRESETS" --dataset kitti --split val --data-root "$DATA/kitti_real"
+# nuScenes: ten keyframes of scene-0916 (devkit val split), all six cameras
+root="$RUNS/nuscenes-real-dataroot"
+case "nuscenes-real" in *"$ONLY"*)
+    [ -d "$root/v1.0-trainval" ] || .venv/bin/i2pbench data nuscenes-dataroot --records "$DATA/nuscenes_real" --out "$root"
+    ;;
+esac
+board nuscenes-real --preset baselines --dataset nuscenes --split val --data-root "$root" \
+    --data-conf 'cameras=[CAM_FRONT, CAM_FRONT_LEFT, CAM_FRONT_RIGHT, CAM_BACK, CAM_BACK_LEFT, CAM_BACK_RIGHT]'
