@@ -57,12 +57,18 @@ class TrainConfig:
     workers: int = 0  # DataLoader worker processes (0: in the main process)
     amp: str = "off"  # "bf16": autocast the learned stages in bfloat16 (losses stay fp32)
     cache_dir: str | None = None  # on-disk cache of extractor outputs and grouping per frame (None: in memory)
+    epochs: bool = False  # samples pass through the split in seeded permutations (else a random frame each)
 
 
 def pick_device(choice: str) -> torch.device:
     if choice == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(choice)
+
+
+def steps_for_epochs(epochs: float, frames: int, config: TrainConfig, world: int = 1) -> int:
+    """optimiser steps that pass `epochs` times through `frames` at the effective batch."""
+    return max(1, math.ceil(epochs * frames / (world * config.accumulate * config.batch_size)))
 
 
 def learning_rate(config: TrainConfig, step: int) -> float:
@@ -147,7 +153,7 @@ class Trainer:
         self.model = TrainModel(pipeline)
         self.params = [p for m in pipeline.learned_modules().values() for p in m.parameters()]
         self.optimizer = torch.optim.Adam(self.params, lr=config.lr)
-        self.samples = TrainingSamples(pipeline.stages, train_set, config.seed, config.cache_dir)
+        self.samples = TrainingSamples(pipeline.stages, train_set, config.seed, config.cache_dir, epochs=config.epochs)
         self.step, self.seconds, self.validation = 0, 0.0, {}
         self.best: float | None = None
         self.lineage: list[dict[str, Any]] = []  # earlier phases on other data (see Checkpoint.lineage)
@@ -373,4 +379,3 @@ def training_meta(train_set: Dataset, config: TrainConfig, world: int = 1) -> di
     trained_on = {**train_set.identity(), "frames": len(train_set.frame_ids())}
     effective = world * config.accumulate * config.batch_size
     return {"trained_on": trained_on, "train_config": {**asdict(config), "ranks": world, "effective_batch": effective}}
-

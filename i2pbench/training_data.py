@@ -83,9 +83,12 @@ class TrainingSamples(torch.utils.data.Dataset):
         seed: int,
         cache_root: str | Path | None = None,
         stage_cache: bool = True,
+        epochs: bool = False,
     ) -> None:
-        """`stage_cache` False recomputes the stages' transform-free inputs (grouping) every time: the old loop."""
-        self.stage_cache = stage_cache
+        """`stage_cache` False recomputes the stages' transform-free inputs (grouping) every time: the old loop.
+        `epochs`: samples go through the split in passes, each a permutation seeded by (seed, epoch), instead of
+        drawing a frame at random for every sample."""
+        self.stage_cache, self.epochs = stage_cache, epochs
         self.stages = {k: stages[k] for k in (*EXTRACTOR_KINDS, *LEARNED_KINDS) if k in stages}
         self.dataset, self.seed = dataset, seed
         self.frame_ids = dataset.frame_ids()
@@ -102,8 +105,12 @@ class TrainingSamples(torch.utils.data.Dataset):
 
     def frame(self, index: int) -> Frame:
         """sample index's frame and transform: a pure function of (seed, index)."""
-        rng = np.random.default_rng([self.seed, index])
-        frame_id = self.frame_ids[int(rng.integers(len(self.frame_ids)))]
+        n = len(self.frame_ids)
+        if self.epochs:
+            epoch, position = divmod(index, n)
+            frame_id = self.frame_ids[int(np.random.default_rng([self.seed, epoch, n]).permutation(n)[position])]
+        else:
+            frame_id = self.frame_ids[int(np.random.default_rng([self.seed, index]).integers(n))]
         return Protocol(seed=self.seed * 1_000_003 + index).apply(self.dataset.load(frame_id))
 
     def keypoints(self, frame: Frame) -> tuple[Keypoints2D, Keypoints3D]:

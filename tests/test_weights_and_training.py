@@ -296,3 +296,23 @@ def test_auto_weights_prefer_a_checkpoint_trained_on_the_run_s_dataset(registry,
     assert select_checkpoint(pipeline, "auto", shipped, "synthetic").path == general
     assert select_checkpoint(pipeline, "auto", shipped, "nuscenes").path == general  # fewest phases
     assert select_checkpoint(pipeline, "auto", shipped[::-1]).path == general
+
+
+class Five(toy_plugin.ToyDataset):
+    def frame_ids(self):
+        return ["a", "c", "d", "e", "f"]
+
+
+def test_epochs_pass_through_every_frame_once_in_a_seeded_order(registry):
+    from i2pbench.training import steps_for_epochs
+    from i2pbench.training_data import TrainingSamples
+
+    stages = _pipeline(registry).stages
+    samples = TrainingSamples(stages, Five("test"), seed=3, epochs=True)
+    orders = [[samples.frame(e * 5 + i).frame_id for i in range(5)] for e in range(3)]
+    assert all(sorted(order) == ["a", "c", "d", "e", "f"] for order in orders)
+    assert len({tuple(o) for o in orders}) > 1  # a new permutation per epoch
+    again = TrainingSamples(stages, Five("test"), seed=3, epochs=True)
+    assert [again.frame(i).frame_id for i in range(5)] == orders[0]
+    assert steps_for_epochs(2, 5, TrainConfig(batch_size=2, accumulate=1)) == 5  # ceil(10 / 2)
+    assert steps_for_epochs(1, 5, TrainConfig(batch_size=2, accumulate=2), world=2) == 1

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from .run import STAGE_OPTIONS
@@ -21,6 +23,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data-root", help="dataset root directory (else I2PBENCH_<NAME>_ROOT)")
     p.add_argument("--out", required=True, help="checkpoint path; training resumes from it when it exists")
     p.add_argument("--steps", type=positive_int, default=20000, help="optimiser steps")
+    p.add_argument(
+        "--epochs",
+        type=float,
+        default=None,
+        help="train this many passes over the split (sets --steps; each pass a permutation seeded by (seed, epoch))",
+    )
     p.add_argument("--batch-size", type=positive_int, default=1, help="frames per forward pass (per rank)")
     p.add_argument("--accumulate", type=positive_int, default=1, help="forward passes per optimiser step")
     p.add_argument("--workers", type=non_negative_int, default=0, help="DataLoader worker processes for data work")
@@ -70,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     from ..pipeline import Pipeline
     from ..plugins import default_registry
     from ..runs.environment import fix_threads
-    from ..training import TrainConfig, Trainer, training_meta
+    from ..training import TrainConfig, Trainer, steps_for_epochs, training_meta
 
     device = resolve_device(args.device)
     fix_threads(args.threads)
@@ -96,7 +104,11 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers,
         amp=args.amp,
         cache_dir=None if args.cache_dir == "none" else args.cache_dir,
+        epochs=args.epochs is not None,
     )
+    if args.epochs is not None:
+        world = int(os.environ.get("WORLD_SIZE", 1))
+        config = replace(config, steps=steps_for_epochs(args.epochs, len(train_set.frame_ids()), config, world))
     out = Path(args.out)
     trainer = Trainer(pipeline, train_set, val_set, out, config)
     resumed = trainer.resume()
