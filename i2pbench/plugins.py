@@ -3,6 +3,12 @@
 Environment variables (as llm's LLM_LOAD_PLUGINS):
 - I2PBENCH_LOAD_PLUGINS: comma-separated entry-point names; when set, only these are loaded ("" loads none).
 - I2PBENCH_BLOCK_PLUGINS: comma-separated entry-point names never to load.
+
+A plugin that fails to import, whose hooks raise, or whose registrations are refused (a name another plugin took,
+a class that is no component) is skipped whole, with a warning, and listed as failed: one broken third-party
+package must not take every command down with it, `i2pbench plugins` included. The built-in plugins register first,
+so a clash with one of them skips the newcomer and keeps the built-in; between two others the one loaded later
+(entry points in name order) is skipped. `strict=True` raises instead, for tests and plugin authors.
 """
 
 from __future__ import annotations
@@ -10,7 +16,8 @@ from __future__ import annotations
 import difflib
 import importlib.metadata
 import os
-from dataclasses import dataclass, field
+import sys
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Any
 
@@ -23,6 +30,7 @@ from .errors import PluginError
 
 hookimpl = pluggy.HookimplMarker("i2pbench")
 ENTRY_POINT_GROUP = "i2pbench"
+BUILTIN_DISTRIBUTION = "i2pbench"  # the reference plugins ship in i2pbench's own distribution
 
 
 @dataclass(frozen=True)
@@ -31,6 +39,11 @@ class PluginInfo:
     version: str
     distribution: str
     hooks: tuple[str, ...]
+    error: str = ""  # why the plugin was skipped; "" when it loaded
+
+    @property
+    def failed(self) -> bool:
+        return bool(self.error)
 
 
 @dataclass(frozen=True)
@@ -94,23 +107,29 @@ def _hooks_of(plugin: object) -> tuple[str, ...]:
     return tuple(h for h in hookspecs.HOOK_NAMES if callable(getattr(plugin, h, None)))
 
 
-def make_plugin_manager(extra_plugins: tuple[object, ...] = ()) -> tuple[pluggy.PluginManager, list[PluginInfo]]:
-    """Load entry-point plugins (honouring the environment filters) plus `extra_plugins` (used by tests)."""
+def make_plugin_manager(
+    extra_plugins: tuple[object, ...] = (), strict: bool = False
+) -> tuple[pluggy.PluginManager, list[PluginInfo]]:
+    """Load entry-point plugins (honouring the environment filters) plus `extra_plugins` (used by tests).
+
+    One that fails to import is reported and listed with its error (or, `strict`, raises PluginError)."""
     pm = pluggy.PluginManager(ENTRY_POINT_GROUP)
     pm.add_hookspecs(hookspecs)
     infos = []
     for ep in _selected_entry_points():
+        dist = ep.dist
+        version, distribution = (dist.version, dist.metadata["Name"]) if dist else ("?", "?")
         try:
             plugin = ep.load()
-        except Exception as exc:  # a broken third-party plugin must not take the tool down with it
-            raise PluginError(f"plugin {ep.name!r} ({ep.value}) failed to import: {exc}") from exc
-        pm.register(plugin, name=ep.name)
-        dist = ep.dist
-        infos.append(
-            PluginInfo(
-                ep.name, dist.version if dist else "?", dist.metadata["Name"] if dist else "?", _hooks_of(plugin)
-            )
-        )
+            pm.register(plugin, name=ep.name)
+        except (Exception, SystemExit) as exc:  # a broken third-party plugin must not take the tool down with it
+            error = f"failed to import (entry point {ep.name} = {ep.value}): {type(exc).__name__}: {exc}"
+            if strict:
+                raise PluginError(f"plugin {ep.name!r} {error}") from exc
+            _warn(ep.name, error)
+            infos.append(PluginInfo(ep.name, version, distribution, (), error))
+            continue
+        infos.append(PluginInfo(ep.name, version, distribution, _hooks_of(plugin)))
     for plugin in extra_plugins:
         name = getattr(plugin, "__name__", type(plugin).__name__)
         pm.register(plugin, name=name)
@@ -118,11 +137,20 @@ def make_plugin_manager(extra_plugins: tuple[object, ...] = ()) -> tuple[pluggy.
     return pm, infos
 
 
-def _collect(pm: pluggy.PluginManager, hook_name: str) -> list[tuple[str, tuple[Any, ...]]]:
-    """Call one hook on each plugin separately, so every registration is attributed to its plugin."""
-    out: list[tuple[str, tuple[Any, ...]]] = []
+def _warn(plugin: str, problem: str) -> None:
+    print(
+        f"i2pbench: warning: plugin {plugin!r} {problem}; it is skipped "
+        f"(I2PBENCH_BLOCK_PLUGINS={plugin} silences this warning)",
+        file=sys.stderr,
+    )
+
+
+def _collect(pm: pluggy.PluginManager, plugin: str, hook_name: str) -> list[tuple[Any, ...]]:
+    """What one plugin registers from one hook (each plugin is called on its own, so it owns what it registers)."""
+    out: list[tuple[Any, ...]] = []
     for impl in getattr(pm.hook, hook_name).get_hookimpls():
-        impl.function(register=lambda *args, _p=impl.plugin_name: out.append((_p, args)))
+        if impl.plugin_name == plugin:
+            impl.function(register=lambda *args: out.append(args))
     return out
 
 
@@ -157,19 +185,44 @@ def _add_preset(registry: Registry, args: tuple[Any, ...], plugin: str) -> None:
     registry.presets[name] = Preset(name, tuple(dict(c) for c in combinations), description, plugin)
 
 
-def build_registry(extra_plugins: tuple[object, ...] = ()) -> Registry:
-    pm, infos = make_plugin_manager(extra_plugins)
-    registry = Registry(plugins=infos)
-    for kind, hook in hookspecs.STAGE_HOOKS.items():
-        for plugin, (cls,) in _collect(pm, hook):
-            _add_component(registry, kind, cls, plugin)
-    for plugin, (cls,) in _collect(pm, "register_datasets"):
-        _add_dataset(registry, cls, plugin)
-    for plugin, args in _collect(pm, "register_presets"):
-        _add_preset(registry, args, plugin)
-    for plugin, (path,) in _collect(pm, "register_weights"):
-        registry.weights.append((str(path), plugin))
+def build_registry(extra_plugins: tuple[object, ...] = (), strict: bool = False) -> Registry:
+    """The registry of the selected entry-point plugins plus `extra_plugins`, built-ins first; a plugin that fails
+    is skipped whole and listed with its error (`strict`: PluginError)."""
+    pm, infos = make_plugin_manager(extra_plugins, strict)
+    registry = Registry()
+    for info in sorted(infos, key=lambda i: i.distribution != BUILTIN_DISTRIBUTION):
+        if not info.failed:
+            try:
+                _register(registry, pm, info.name)
+            except (Exception, SystemExit) as exc:
+                if strict:
+                    raise
+                error = str(exc) if isinstance(exc, PluginError) else f"raised {type(exc).__name__}: {exc}"
+                _warn(info.name, f"could not register: {error}")
+                info = replace(info, error=error)
+        registry.plugins.append(info)
     return registry
+
+
+def _register(registry: Registry, pm: pluggy.PluginManager, plugin: str) -> None:
+    """Add everything one plugin registers, or (when any of it is refused) nothing at all."""
+    trial = Registry(
+        {kind: dict(table) for kind, table in registry.components.items()},
+        dict(registry.datasets),
+        dict(registry.presets),
+        list(registry.weights),
+    )
+    for kind, hook in hookspecs.STAGE_HOOKS.items():
+        for (cls,) in _collect(pm, plugin, hook):
+            _add_component(trial, kind, cls, plugin)
+    for (cls,) in _collect(pm, plugin, "register_datasets"):
+        _add_dataset(trial, cls, plugin)
+    for args in _collect(pm, plugin, "register_presets"):
+        _add_preset(trial, args, plugin)
+    for (path,) in _collect(pm, plugin, "register_weights"):
+        trial.weights.append((str(path), plugin))
+    registry.components, registry.datasets, registry.presets = trial.components, trial.datasets, trial.presets
+    registry.weights = trial.weights
 
 
 @lru_cache(maxsize=1)

@@ -1,4 +1,4 @@
-"""`i2pbench plugins`: every installed plugin, its version, and the components it registers."""
+"""`i2pbench plugins`: every installed plugin, its version, and the components it registers (or why it failed)."""
 
 from __future__ import annotations
 
@@ -20,6 +20,8 @@ def run(args: argparse.Namespace) -> int:
             "plugin": i.name,
             "version": i.version,
             "distribution": i.distribution,
+            "status": "failed" if i.failed else "ok",
+            "error": i.error,
             "hooks": list(i.hooks),
             "components": components_of(registry, i.name),
         }
@@ -29,7 +31,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(rows, indent=2))
         return 0
     for row in rows:
-        print(f"{row['plugin']} {row['version']} ({row['distribution']})")
+        failed = f" FAILED: {row['error']}" if row["error"] else ""
+        print(f"{row['plugin']} {row['version']} ({row['distribution']}){failed}")
         for kind, names in row["components"].items():
             print(f"  {kind:12s} {', '.join(names)}")
     return 0
