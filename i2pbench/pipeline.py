@@ -2,22 +2,26 @@
 
 Each stage is timed on its own; an exception, a contract violation or a stage running past its time limit (see
 `i2pbench.timeout`) becomes a failed outcome that names the component, so one bad frame or plugin never sinks a run.
+That includes plugin code calling sys.exit or raising KeyboardInterrupt; only the user's own Ctrl-C stops a run
+(`i2pbench.interrupts` tells the two apart). Untrusted plugins can run in a child process instead
+(`i2pbench.isolation`), which a time limit can kill even when the stage holds the GIL.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import time
 import traceback
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import torch
 
-from . import contracts
+from . import contracts, interrupts
 from .components import (
     FEATURES2D,
     FEATURES3D,
@@ -31,6 +35,7 @@ from .components import (
     LearnedComponent,
 )
 from .errors import PluginError, StageError
+from .isolation import IsolationError, ProcessIsolation, isolation_from_env
 from .plugins import Registry
 from .timeout import StageTimeout, TimeLimiter, timeout_from_env
 from .types import Features, Frame, Keypoints2D, Keypoints3D, PoseEstimate
@@ -98,22 +103,50 @@ class FrameOutcome:
         return int(len(self.estimate.inliers))
 
 
+@dataclass
+class _FrameState:
+    """How far one frame has got: the stage running, seconds per finished stage, counts; `on_stage` hears starts."""
+
+    on_stage: Callable[[_FrameState], None] | None = None
+    stage: str = ""
+    timings: dict[str, float] = field(default_factory=dict)
+    counts: dict[str, Any] = field(default_factory=lambda: {"n_kp2d": 0, "n_kp3d": 0, "n_matches": 0})
+
+    def enter(self, kind: str) -> None:
+        self.stage = kind
+        if self.on_stage is not None:
+            self.on_stage(self)
+
+
 class Pipeline:
     """Instantiated components for every stage kind, in data-flow order."""
 
     def __init__(
-        self, combination: Combination, stages: Mapping[str, Component], timeout_s: float | None | str = "env"
+        self,
+        combination: Combination,
+        stages: Mapping[str, Component],
+        timeout_s: float | None | str = "env",
+        isolate: str = "thread",
     ) -> None:
-        """`timeout_s`: seconds one frame may take; None disables; "env" reads I2PBENCH_STAGE_TIMEOUT_S."""
+        """`timeout_s`: seconds one frame may take; None disables; "env" reads I2PBENCH_STAGE_TIMEOUT_S.
+
+        `isolate`: "thread" (stages run in this process) or "process" (in a child process); "env" reads
+        I2PBENCH_ISOLATE. Only `build` reads it by default: a pipeline of wrapped stages whose side effects must
+        stay in this process (a report's recording trace) is built directly.
+        """
         self.combination = combination
         self.stages = {k: stages[k] for k in STAGE_ORDER if k in stages}
         self.limiter = TimeLimiter(timeout_from_env() if timeout_s == "env" else timeout_s)
+        mode = isolation_from_env() if isolate == "env" else isolate
+        self.isolation = ProcessIsolation(self.limiter.timeout_s) if mode == "process" else None
         self.weights_identity = "none" if not self.learned_modules() else "untrained"
         self.weights_meta: dict[str, Any] = {}
         _check_compatibility(self.stages)
 
     @classmethod
-    def build(cls, registry: Registry, combination: Combination, timeout_s: float | None | str = "env") -> Pipeline:
+    def build(
+        cls, registry: Registry, combination: Combination, timeout_s: float | None | str = "env", isolate: str = "env"
+    ) -> Pipeline:
         missing = [k for k in REQUIRED_STAGES if combination.name(k) == NONE]
         if missing:
             raise PluginError(f"combination {combination.label!r} has no {', '.join(missing)}")
@@ -122,7 +155,7 @@ class Pipeline:
             if combination.name(kind) != NONE:
                 component_cls = registry.component(kind, combination.name(kind))
                 stages[kind] = component_cls(combination.confs.get(kind))
-        return cls(combination, stages, timeout_s)
+        return cls(combination, stages, timeout_s, isolate)
 
     def learned_modules(self) -> dict[str, LearnedComponent]:
         return {k: c for k, c in self.stages.items() if isinstance(c, LearnedComponent)}
@@ -143,34 +176,55 @@ class Pipeline:
         return self
 
     def run(self, frame: Frame) -> FrameOutcome:
-        """Run every stage on one frame; never raises for a stage's failure.
+        """Run every stage on one frame; never raises for a stage's failure, only for the user's Ctrl-C.
 
-        The whole frame runs under the time limiter (one thread hand-off per frame, not per stage); a frame that
-        overruns is failed in the name of the stage that was running.
+        The whole frame runs under the time limiter (one thread hand-off per frame, not per stage), or in the child
+        process when isolated; a frame that overruns is failed in the name of the stage that was running.
         """
-        timings: dict[str, float] = {}
-        counts: dict[str, Any] = {"n_kp2d": 0, "n_kp3d": 0, "n_matches": 0}
-        current = [""]  # the stage running when an exception escapes or time runs out
-        try:
-            estimate = self.limiter.call(lambda: self._run_stages(frame, timings, counts, current))
-            return FrameOutcome(estimate, timings, **counts, error="" if estimate.ok else estimate.message)
-        except Exception as exc:  # the failure is the result: record it, name the component, go on
-            if isinstance(exc, StageError):
-                component, message = exc.component, str(exc)
-            else:
-                component = self.stages[current[0]].label if current[0] in self.stages else "pipeline"
-                message = f"{component}: {exc}" if isinstance(exc, StageTimeout) else f"{component}: {_describe(exc)}"
-            return FrameOutcome(
-                PoseEstimate.failed(message), dict(timings), **dict(counts), error=message, failed_component=component
-            )
+        if self.isolation is not None:
+            return self.isolation.run(self, frame)
+        return self.run_here(frame, self.limiter)
 
-    def _run_stages(
-        self, frame: Frame, timings: dict[str, float], counts: dict[str, Any], current: list[str]
-    ) -> PoseEstimate:
-        """Run the stages, filling `counts` with keypoint and match counts and the matched pairs' coordinates."""
+    def run_here(
+        self,
+        frame: Frame,
+        limiter: TimeLimiter | None = None,
+        on_stage: Callable[[_FrameState], None] | None = None,
+    ) -> FrameOutcome:
+        """Run the stages in this process (under `limiter` if given); `on_stage` hears each stage as it starts."""
+        state = _FrameState(on_stage)
+        work = functools.partial(self._run_stages, frame, state)
+        mark = interrupts.watch()
+        try:
+            estimate = work() if limiter is None else limiter.call(work)
+            return FrameOutcome(estimate, state.timings, **state.counts, error="" if estimate.ok else estimate.message)
+        except BaseException as exc:  # SystemExit, KeyboardInterrupt... from a plugin are its failure, not the run's
+            if interrupts.stops_run(exc, mark):  # the user's Ctrl-C: stop, keeping the frames finished
+                if isinstance(exc, KeyboardInterrupt):
+                    raise
+                raise KeyboardInterrupt from exc
+            return self.failed(exc, state.stage, state.timings, state.counts)
+
+    def failed(
+        self, exc: BaseException, kind: str, timings: Mapping[str, float], counts: Mapping[str, Any]
+    ) -> FrameOutcome:
+        """The failed outcome of a frame that raised `exc` while stage `kind` ran, naming its component."""
+        if isinstance(exc, StageError):
+            component, message = exc.component, str(exc)
+        else:
+            component = self.stages[kind].label if kind in self.stages else "pipeline"
+            plain = isinstance(exc, StageTimeout | IsolationError)
+            message = f"{component}: {exc}" if plain else f"{component}: {_describe(exc)}"
+        return FrameOutcome(
+            PoseEstimate.failed(message), dict(timings), **dict(counts), error=message, failed_component=component
+        )
+
+    def _run_stages(self, frame: Frame, state: _FrameState) -> PoseEstimate:
+        """Run the stages, filling `state.counts` with keypoint and match counts and the matched pairs' coordinates."""
         kept: dict[str, Any] = {}
+        counts = state.counts
         with torch.inference_mode():
-            for kind, result in self._stages(frame, timings, current):
+            for kind, result in self._stages(frame, state):
                 _count(kind, result, counts)
                 kept[kind] = result
                 if kind == "matcher":
@@ -178,16 +232,16 @@ class Pipeline:
                     counts["matched_xyz"] = kept["extractor3d"].xyz[result.index3d]
         return result
 
-    def _stages(self, frame: Frame, timings: dict[str, float], current: list[str]):
+    def _stages(self, frame: Frame, state: _FrameState):
         """Yield (kind, output) for each stage in order, timing each one and checking its output."""
         hidden = frame.without_ground_truth()
         s = self.stages
 
         def call(kind: str, *args: Any) -> Any:
             component = s[kind]
-            current[0] = kind
+            state.enter(kind)
             view = frame if GROUND_TRUTH in component.consumes else hidden
-            out, timings[kind] = _timed(component, view, *args)
+            out, state.timings[kind] = _timed(component, view, *args)
             return out
 
         kp2d = contracts.check_keypoints2d(call("extractor2d"), frame, s["extractor2d"].label)
@@ -232,7 +286,9 @@ def _count(kind: str, result: Any, counts: dict[str, Any]) -> None:
 def _describe(exc: BaseException) -> str:
     where = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
     loc = f" (at {where.filename.rsplit('/', 1)[-1]}:{where.lineno})" if where else ""
-    return f"{type(exc).__name__}: {exc}{loc}"
+    if isinstance(exc, SystemExit):  # its str() is the bare exit code, or nothing
+        return f"called sys.exit({exc.code!r}){loc}"
+    return f"{type(exc).__name__}: {exc}{loc}" if str(exc) else f"{type(exc).__name__}{loc}"
 
 
 def _synchronize() -> None:

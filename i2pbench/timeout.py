@@ -8,6 +8,9 @@ process alive at exit. The next call gets a fresh worker thread. An abandoned ca
 The limit comes from `Pipeline(timeout_s=...)`, else the environment variable I2PBENCH_STAGE_TIMEOUT_S (seconds, or
 "none" to disable), else DEFAULT_TIMEOUT_S. With no limit a stage runs in the caller's thread, exactly as without
 this module.
+
+A stage that holds the GIL (a long C call that does not release it) keeps the waiting caller asleep until it returns, so
+this limit cannot fire on it; `i2pbench.isolation` runs stages in a child process that can be killed instead.
 """
 
 from __future__ import annotations
@@ -25,10 +28,10 @@ ENV_VAR = "I2PBENCH_STAGE_TIMEOUT_S"
 
 
 class StageTimeout(Exception):
-    """A stage ran past its time limit and was abandoned."""
+    """A stage ran past its time limit and was abandoned (or, isolated in a process, killed)."""
 
-    def __init__(self, seconds: float) -> None:
-        super().__init__(f"timed out after {seconds:g} s (abandoned; its thread may still run in the background)")
+    def __init__(self, seconds: float, fate: str = "abandoned; its thread may still run in the background") -> None:
+        super().__init__(f"timed out after {seconds:g} s ({fate})")
         self.seconds = seconds
 
 
@@ -90,7 +93,12 @@ class TimeLimiter:
             return fn()
         task = _Task(fn)
         self._worker().put(task)
-        if not task.done.wait(self.timeout_s):
+        try:
+            finished = task.done.wait(self.timeout_s)
+        except BaseException:  # a Ctrl-C while waiting: the worker is still busy with fn, so no later call may queue
+            self._retire()
+            raise
+        if not finished:
             self._retire()
             raise StageTimeout(self.timeout_s)
         if task.error is not None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -74,6 +75,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="recompute frames already in the cache")
     p.add_argument("--threads", type=positive_int, help="torch and OpenCV threads (default min(4, cores))")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--isolate", choices=("thread", "process"), help="run stages in a killable child process (process) "
+                   "for untrusted plugins; default I2PBENCH_ISOLATE, else thread")  # fmt: skip
     add_scale_options(p)
 
 
@@ -172,6 +175,8 @@ def run(args: argparse.Namespace) -> int:
     from ..runs.environment import fix_threads
     from ..runs.invocation import Invocation
 
+    if args.isolate:  # Pipeline.build reads it; worker processes receive pipelines built here
+        os.environ["I2PBENCH_ISOLATE"] = args.isolate
     threads = fix_threads(args.threads)
     args.device = str(resolve_device(args.device))  # resolved once: "auto" would read differently in the record
     registry = default_registry()

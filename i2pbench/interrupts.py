@@ -1,0 +1,39 @@
+"""Telling the user's Ctrl-C from a KeyboardInterrupt that plugin code raised itself.
+
+Both arrive as KeyboardInterrupt, but only the first should stop a run: a plugin raising it (or calling sys.exit) is
+a broken stage. So SIGINTs are counted by a handler that otherwise does what Python's default one does (raise
+KeyboardInterrupt), and a frame compares the count before and after. Where SIGINT cannot raise KeyboardInterrupt
+(outside the main thread, or with SIGINT ignored) every KeyboardInterrupt is the plugin's. Where the application
+installed a SIGINT handler of its own, it is left alone and a KeyboardInterrupt stops the run, as it always did.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from types import FrameType
+
+_count = 0
+
+
+def watch() -> int | None:
+    """Count SIGINTs from now on; returns the count so far, or None when SIGINT is another handler's to count."""
+    if threading.current_thread() is not threading.main_thread():
+        return _count  # signals raise in the main thread only: the count is never the question here
+    current = signal.getsignal(signal.SIGINT)
+    if current is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _on_sigint)
+    elif current is not _on_sigint and callable(current):
+        return None
+    return _count
+
+
+def stops_run(exc: BaseException, mark: int | None) -> bool:
+    """Whether `exc`, raised during a frame watched from `mark`, is the user's Ctrl-C (or came with one)."""
+    return isinstance(exc, KeyboardInterrupt) if mark is None else _count != mark
+
+
+def _on_sigint(signum: int, frame: FrameType | None) -> None:
+    global _count
+    _count += 1
+    signal.default_int_handler(signum, frame)

@@ -1,0 +1,204 @@
+"""Process isolation for untrusted plugins: a frame's stages run in a child process, killed when time runs out.
+
+The stage time limit (`i2pbench.timeout`) abandons a thread, which cannot stop a stage holding the GIL in C, nor
+survive one that segfaults or calls os._exit. With I2PBENCH_ISOLATE=process (`i2pbench run --isolate process`)
+every process that runs frames keeps one spawned child. The child receives the pipeline (pickled, once, and again
+whenever its learned weights change), then one frame at a time, and says which stage starts as it starts it. A frame
+that overruns is failed in that stage's name and the child is SIGKILLed; a child that crashes fails its frame the
+same way; the next frame starts a fresh child. The price: a second copy of the pipeline, a few seconds to start
+each child, and pickling every frame and outcome.
+"""
+
+from __future__ import annotations
+
+import itertools
+import multiprocessing
+import os
+import pickle
+import signal
+import threading
+import time
+import uuid
+from multiprocessing.connection import Connection
+from typing import TYPE_CHECKING, Any
+
+import torch
+
+from .errors import I2PBenchError
+from .lifeline import exit_with_parent
+from .timeout import StageTimeout
+
+if TYPE_CHECKING:
+    from .pipeline import FrameOutcome, Pipeline
+    from .types import Frame
+
+ENV_VAR = "I2PBENCH_ISOLATE"
+MODES = ("thread", "process")
+START_LIMIT_S = 120.0  # the least time a child gets to start and load a pipeline (it imports torch and the plugins)
+KILLED = "its process was killed"
+
+
+class IsolationError(Exception):
+    """The child process could not run the frame: it died, or could not receive the pipeline."""
+
+
+def isolation_from_env(default: str = "thread") -> str:
+    """The mode set by I2PBENCH_ISOLATE ("thread" or "process"), else `default`."""
+    value = os.environ.get(ENV_VAR, "").strip().lower() or default
+    if value not in MODES:
+        raise I2PBenchError(f"{ENV_VAR}={value!r}: expected one of {', '.join(MODES)}")
+    return value
+
+
+class ProcessIsolation:
+    """A pipeline's handle on this process's child: what to send it, and how long a frame may take there."""
+
+    def __init__(self, timeout_s: float | None) -> None:
+        self.timeout_s = timeout_s
+        self.token = uuid.uuid4().hex  # which pipeline the child holds; pickled copies keep it, in their own process
+
+    def run(self, pipeline: Pipeline, frame: Frame) -> FrameOutcome:
+        with _LOCK:  # one conversation with the child at a time, whichever thread runs frames
+            child = _child()
+            try:
+                child.load(pipeline, self.token, self.timeout_s)
+            except (IsolationError, StageTimeout) as exc:
+                return pipeline.failed(exc, "", {}, {})
+            return child.run(pipeline, frame, self.timeout_s)
+
+
+_CHILD: _Child | None = None
+_LOCK = threading.Lock()
+
+
+def _child() -> _Child:
+    """This process's child, started afresh when there is none, it died or was killed, or this is a forked copy."""
+    global _CHILD
+    if _CHILD is None or not _CHILD.usable():
+        _CHILD = _Child()
+    return _CHILD
+
+
+class _Child:
+    def __init__(self) -> None:
+        context = multiprocessing.get_context("spawn")  # a fresh interpreter: no lock or CUDA state from this one
+        self.conn, theirs = context.Pipe()
+        self.process = context.Process(target=_serve, args=(theirs,), name="i2pbench-isolated", daemon=True)
+        self.process.start()
+        theirs.close()  # so that the child's death reads as end-of-file here
+        self.owner = os.getpid()
+        self.holds: tuple[str, Any] | None = None  # (token, fingerprint) of the pipeline it has
+
+    def usable(self) -> bool:
+        return self.owner == os.getpid() and self.process.is_alive()
+
+    def load(self, pipeline: Pipeline, token: str, timeout_s: float | None) -> None:
+        """Hand the child the pipeline, unless it already holds it as it is now."""
+        state = (token, fingerprint(pipeline))
+        if self.holds == state:
+            return
+        try:
+            payload = pickle.dumps(pipeline)
+        except Exception as exc:
+            raise IsolationError(f"the pipeline does not pickle ({type(exc).__name__}: {exc})") from None
+        self._send(("load", payload, torch.get_num_threads()))
+        limit = None if timeout_s is None else max(START_LIMIT_S, timeout_s)
+        reply = self._receive(time.monotonic(), limit, f"{KILLED} while starting")
+        if reply[0] == "error":
+            raise IsolationError(f"its process could not load the pipeline: {reply[1]}")
+        self.holds = state
+
+    def run(self, pipeline: Pipeline, frame: Frame, timeout_s: float | None) -> FrameOutcome:
+        """The frame's outcome from the child; a timeout or the child's death fails it in the running stage's name."""
+        stage, timings, counts = "", {}, {}
+        start = time.monotonic()
+        try:
+            self._send(("frame", frame))
+            while (message := self._receive(start, timeout_s))[0] == "stage":
+                _, stage, timings, counts = message
+        except (IsolationError, StageTimeout) as exc:
+            return pipeline.failed(exc, stage, timings, counts)
+        return message[1]
+
+    def _send(self, message: tuple[Any, ...]) -> None:
+        try:
+            self.conn.send_bytes(pickle.dumps(message))
+        except OSError:
+            raise IsolationError(self._kill()) from None
+
+    def _receive(self, start: float, limit: float | None, fate: str = KILLED) -> tuple[Any, ...]:
+        """The child's next message; the child is killed when `limit` seconds from `start` pass (StageTimeout)."""
+        try:
+            if self.conn.poll(None if limit is None else max(0.0, start + limit - time.monotonic())):
+                return pickle.loads(self.conn.recv_bytes())
+        except (EOFError, OSError):
+            raise IsolationError(self._kill()) from None
+        except BaseException:  # a Ctrl-C while waiting: the frame is given up, and the child with it
+            self._kill()
+            raise
+        self._kill()
+        assert limit is not None  # poll(None) returns only once there is something to read
+        raise StageTimeout(limit, fate)
+
+    def _kill(self) -> str:
+        """SIGKILL the child (if still alive) and say how it ended."""
+        self.process.kill()
+        self.process.join(5)
+        self.conn.close()
+        code = self.process.exitcode
+        how = f"signal {signal.Signals(-code).name}" if code is not None and code < 0 else f"exit code {code}"
+        return f"its process died ({how})"
+
+
+def fingerprint(pipeline: Pipeline) -> tuple[Any, ...]:
+    """What changes when learned weights do (an optimiser step, a checkpoint, a move): storage, version, mode."""
+    return tuple(
+        (kind, module.training, tuple((t.data_ptr(), t._version) for t in _tensors(module)))
+        for kind, module in pipeline.learned_modules().items()
+    )
+
+
+def _tensors(module: torch.nn.Module) -> itertools.chain[torch.Tensor]:
+    return itertools.chain(module.parameters(), module.buffers())
+
+
+def _serve(conn: Connection) -> None:
+    """The child's loop: take a pipeline, then frames, until the parent closes the pipe or dies."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it stops the run and kills this process
+    exit_with_parent()
+    pipeline = None
+    while True:
+        try:
+            kind, *body = pickle.loads(conn.recv_bytes())
+        except EOFError:
+            return
+        if kind == "load":
+            pipeline, reply = _load(*body)
+            conn.send_bytes(pickle.dumps(reply))
+        else:
+            assert pipeline is not None, "a frame came before any pipeline"
+            _reply(conn, pipeline, pipeline.run_here(body[0], on_stage=lambda state: _report(conn, state)))
+
+
+def _load(payload: bytes, threads: int) -> tuple[Pipeline | None, tuple[str, ...]]:
+    from .runs.environment import fix_threads
+
+    try:
+        pipeline = pickle.loads(payload)
+    except BaseException as exc:  # a plugin module that fails to import here, or exits while importing
+        return None, ("error", f"{type(exc).__name__}: {exc}")
+    fix_threads(threads)  # the parent's thread count, so latency is comparable with an in-process run
+    return pipeline, ("loaded",)
+
+
+def _report(conn: Connection, state: Any) -> None:
+    counts = {k: v for k, v in state.counts.items() if isinstance(v, int)}
+    conn.send_bytes(pickle.dumps(("stage", state.stage, dict(state.timings), counts)))
+
+
+def _reply(conn: Connection, pipeline: Pipeline, outcome: FrameOutcome) -> None:
+    try:
+        payload = pickle.dumps(("done", outcome))
+    except Exception as exc:  # a stage's output that does not pickle
+        payload = pickle.dumps(("done", pipeline.failed(exc, "", outcome.timings, {})))
+    conn.send_bytes(payload)
