@@ -27,6 +27,7 @@ import pandas as pd
 
 from ..data.base import Dataset
 from ..errors import I2PBenchError
+from ..lifeline import exit_with_parent
 from ..pipeline import Combination
 from ..plugins import Registry
 from ..protocol import Protocol
@@ -250,6 +251,7 @@ _WORKER: Worker | None = None  # a pool process's state, built once by its initi
 
 def _init_pool_worker(work: Work, threads: int, device: str | None) -> None:
     global _WORKER
+    exit_with_parent()  # else a killed driver leaves its workers blocked on the task queue, weights in memory
     _WORKER = Worker(work, threads, device)
 
 
