@@ -48,16 +48,18 @@ def front(trainval):
     return NuScenes("val", {"root": str(trainval)}).load(f"{SAMPLE}/CAM_FRONT")
 
 
-def test_scene_0916_is_a_val_scene_so_train_and_val_hold_it(trainval):
+def test_scene_0916_is_a_val_scene_so_trainval_and_val_hold_it_and_train_does_not(trainval):
     assert NuScenes("val", {"root": str(trainval)}).frame_ids() == [f"{SAMPLE}/CAM_FRONT"]
-    assert NuScenes("train", {"root": str(trainval)}).frame_ids() == [f"{SAMPLE}/CAM_FRONT"]  # train = 700 + 150 val
+    assert NuScenes("trainval", {"root": str(trainval)}).frame_ids() == [f"{SAMPLE}/CAM_FRONT"]  # 700 + 150 val
+    with pytest.raises(DataError, match="no frames for split 'train'"):
+        NuScenes("train", {"root": str(trainval)}).frame_ids()
     six = NuScenes("val", {"root": str(trainval), "cameras": list(CAMERAS)}).frame_ids()
     assert six == sorted(f"{SAMPLE}/{c}" for c in CAMERAS)
 
 
 def test_split_sizes_follow_the_devkit():
     sizes = {s: len(NuScenes(s, {"version": v}).scene_names()) for s, (_, v) in nus.SPLITS.items()}
-    assert sizes == {"train": 850, "val": 150, "test": 150, "mini_train": 8, "mini_val": 2}
+    assert sizes == {"trainval": 850, "train": 700, "val": 150, "test": 150, "mini_train": 8, "mini_val": 2}
 
 
 def test_mini_version_and_its_splits(tmp_path):

@@ -61,7 +61,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run combinations of stages over a dataset split and print the leaderboard")
     for kind, flags in STAGE_OPTIONS.items():
         p.add_argument(*flags, dest=kind, type=_split_list, help=f"{kind} name(s), comma-separated; 'none' skips")
-    p.add_argument("--preset", help="a registered list of combinations (e.g. edge-ablation)")
+    p.add_argument("--preset", help="a registered list of combinations (e.g. edge-ablation); a,b: their union")
     p.add_argument("--grid", help="YAML grid file: base: {kind: name}, grid: {kind: [names]}, confs: {kind: {k: v}}")
     p.add_argument("--conf", action="append", default=[], type=yaml_setting, metavar="KIND.KEY=VALUE", help=CONF_HELP)
     add_data_options(p)

@@ -26,8 +26,9 @@ CAMERAS = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_FRONT_LEFT", "CAM_BACK", "CAM_BA
 VERSIONS = ("v1.0-trainval", "v1.0-mini", "v1.0-test")
 # split -> (devkit scene lists whose union it is, the version that holds those scenes)
 SPLITS: dict[str, tuple[tuple[str, ...], str]] = {
-    "train": (("train", "val"), "v1.0-trainval"),  # the 850 annotated scenes the paper trains on
-    "val": (("val",), "v1.0-trainval"),
+    "trainval": (("train", "val"), "v1.0-trainval"),  # the 850 annotated scenes the paper trains on
+    "train": (("train",), "v1.0-trainval"),  # the devkit's 700: trainval less val, to train with validation
+    "val": (("val",), "v1.0-trainval"),  # the devkit's 150, whole scenes; never the test scenes
     "test": (("test",), "v1.0-test"),  # the 150 scenes the paper tests on
     "mini_train": (("mini_train",), "v1.0-mini"),
     "mini_val": (("mini_val",), "v1.0-mini"),
