@@ -209,7 +209,7 @@ def run_grid(
     Pipelines are prepared on the CPU (so an incompatible combination is refused before any worker starts, and
     weights pickle without a GPU); each worker moves them to its own device.
     """
-    jobs = prepare(registry, combinations, weights, "cpu")
+    jobs = prepare(registry, combinations, weights, "cpu", dataset.name)
     frame_ids = list(frame_ids if frame_ids is not None else dataset.frame_ids())
     work_plan = plan(jobs, dataset, frame_ids, protocol, store, overwrite)
     if progress and work_plan.records:
