@@ -70,9 +70,12 @@ def batches_natively(stage: Component) -> bool:
 def prepare_stage(
     kind: str, stage: Component, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, cache: dict | None
 ) -> dict[str, Any]:
-    """one frame's inputs for the stage of this kind (the frame itself for a stage without `prepare`)."""
+    """one frame's inputs for the stage of this kind (the frame itself for a stage without `prepare`); only the
+    matcher, whose loss is the supervision, sees the ground truth."""
+    if kind != "matcher":
+        frame = frame.without_ground_truth()
     if not batches_natively(stage):
-        return {PER_FRAME: (frame if kind == "matcher" else frame.without_ground_truth(), kp2d, kp3d)}
+        return {PER_FRAME: (frame, kp2d, kp3d)}
     if kind == "encoder2d":
         return stage.prepare(frame, kp2d, cache=cache)
     if kind == "encoder3d":

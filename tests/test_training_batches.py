@@ -112,3 +112,20 @@ def test_bf16_autocast_runs_on_the_cpu_and_keeps_the_loss_close_to_float32():
     assert half.dtype == torch.float32 and torch.isfinite(half)  # the loss itself stays float32
     assert abs(half.item() - full.item()) < 0.05 * full.item()  # bf16 keeps ~3 digits; measured: 0.18%
     assert terms["pairs"] > 0
+
+
+def test_only_the_matcher_s_prepare_sees_the_ground_truth():
+    seen = {}
+
+    class Spy:
+        def __init__(self, kind):
+            self.kind = kind
+
+        def prepare(self, frame, *args, cache=None):
+            seen[self.kind] = frame.T_gt is not None
+            return {}
+
+    frame, kp2d, kp3d = tiny_frame()
+    for kind in KINDS:
+        prepare_stage(kind, Spy(kind), frame, kp2d, kp3d, None)
+    assert seen == {"encoder2d": False, "encoder3d": False, "exchanger": False, "matcher": True}
