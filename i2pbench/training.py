@@ -24,13 +24,16 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import pandas as pd
 import torch
 
 from .batching import BatchForward, to_device
 from .components import TrainableMatcher
 from .data.base import Dataset
 from .errors import I2PBenchError, PluginError, WeightsError
-from .metrics import pose_errors, summarize
+from .leaderboard import MIN_TRUE_MATCHES
+from .metrics import pose_errors, success, summarize
 from .pipeline import Pipeline
 from .protocol import Protocol
 from .training_data import TrainingSamples, collate_samples
@@ -268,17 +271,27 @@ class Trainer:
         """Acc./RTE/RRE of the full pipeline (solver included) on the first val frames, protocol seed 0."""
         if self.val_set is None:
             return {}
+        from .runs.runner import true_matches
+
         self.pipeline.eval()
-        protocol, rte, rre = Protocol(), [], []
+        protocol, rte, rre, true = Protocol(), [], [], []
         for frame_id in self.val_set.frame_ids()[: self.config.val_frames]:
             try:
                 frame = protocol.apply(self.val_set.load(frame_id))
             except I2PBenchError:
                 continue
-            errors = pose_errors(self.pipeline.run(frame).estimate.T, frame.T_gt)
+            outcome = self.pipeline.run(frame)
+            errors = pose_errors(outcome.estimate.T, frame.T_gt)
             rte.append(errors.rte_m)
             rre.append(errors.rre_deg)
+            true.append(true_matches(frame, outcome))
         stats = summarize(rte, rre, protocol)
+        won = success(pd.Series(rte, dtype=float), pd.Series(rre, dtype=float), protocol).to_numpy()
+        counts = np.nan_to_num(np.asarray(true, dtype=float))
+        stats.update(
+            true_matches_median=float(np.median(counts)) if len(counts) else math.nan,
+            chance=float((won & (counts < MIN_TRUE_MATCHES)).sum()),  # successes a PnP cannot have earned
+        )
         return {"step": self.step, "frames": len(rte), **{k: v for k, v in stats.items() if not math.isnan(v)}}
 
     def save(self, meta: dict[str, Any]) -> None:

@@ -35,6 +35,7 @@ def test_train_on_real_kitti_validates_without_extra_flags_and_the_seed_fixes_th
     assert "effective batch 2" in done.stderr
     first, second = load_checkpoint(a), load_checkpoint(b)
     assert first.meta["steps"] == 2 and first.meta["validation"]["frames"] == 1  # val: sequence 26, held out
+    assert {"acc_pct", "true_matches_median", "chance"} <= set(first.meta["validation"])
     assert first.meta["trained_on"]["split"] == "train" and first.meta["trained_on"]["frames"] == 17  # sequence 04
     for kind, state in first.state.items():
         assert all(torch.equal(state[k], second.state[kind][k]) for k in state), kind
