@@ -12,7 +12,7 @@ from typing import NoReturn
 from .errors import I2PBenchError
 from .progress import set_quiet
 
-COMMANDS = ("plugins", "run", "train", "diagnose", "domain-gap", "data", "compare", "viz", "report")
+COMMANDS = ("plugins", "run", "train", "diagnose", "domain-gap", "data", "compare", "evaluate", "viz", "report")
 PIPELINE_COMMANDS = ("run", "train", "viz")  # those that build pipelines, which read the stage time limit
 
 

@@ -14,7 +14,7 @@ import hashlib
 import json
 import time
 import traceback
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Generator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -29,6 +29,7 @@ from .components import (
     IMAGE,
     KEYPOINTS2D,
     KEYPOINTS3D,
+    MATCHES,
     POINTS,
     STAGE_ORDER,
     Component,
@@ -38,10 +39,13 @@ from .errors import PluginError, StageError
 from .isolation import IsolationError, ProcessIsolation, isolation_from_env
 from .plugins import Registry
 from .timeout import StageTimeout, TimeLimiter, timeout_from_env
-from .types import Features, Frame, Keypoints2D, Keypoints3D, PoseEstimate
+from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
 
 NONE = "none"  # a stage set to "none" is skipped
 REQUIRED_STAGES = ("extractor2d", "extractor3d", "matcher", "solver")
+# what a solver may read to run alone on a stored upstream: no pixels, no points (they are not stored)
+RESOLVABLE = frozenset({KEYPOINTS2D, KEYPOINTS3D, MATCHES, GROUND_TRUTH})
+Stages = Generator[tuple[str, Any], None, "Upstream"]
 
 
 @dataclass(frozen=True)
@@ -84,6 +88,15 @@ class Combination:
         return hashlib.sha256(json.dumps(self.describe(), sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
+@dataclass(frozen=True)
+class Upstream:
+    """What the solver consumes, as the stages before it produced it: stored, it lets another solver run alone."""
+
+    kp2d: Keypoints2D
+    kp3d: Keypoints3D
+    matches: Matches
+
+
 @dataclass
 class FrameOutcome:
     """What running a pipeline on one frame produced."""
@@ -97,6 +110,7 @@ class FrameOutcome:
     failed_component: str = ""
     matched_uv: np.ndarray | None = None  # [K x 2] pixels of the matcher's pairs (None: the matcher did not run)
     matched_xyz: np.ndarray | None = None  # [K x 3] LiDAR points of the same pairs, for the metrics' inlier ratio
+    upstream: Upstream | None = None  # the solver's inputs (None: the matcher did not finish)
 
     @property
     def n_inliers(self) -> int:
@@ -175,6 +189,21 @@ class Pipeline:
             module.eval()
         return self
 
+    @property
+    def resolvable(self) -> bool:
+        """Whether the solver can run alone on a stored upstream: it declares no input beyond keypoints, matches and
+        ground truth, and runs in this process (an isolated child is handed whole frames only)."""
+        return self.isolation is None and self.stages["solver"].consumes <= RESOLVABLE
+
+    def resolve(self, frame: Frame, upstream: Upstream) -> FrameOutcome:
+        """Run the solver alone on a stored upstream, with `run`'s checks, time limit, timing and failure handling.
+
+        `frame` needs only what a resolvable solver reads: intrinsics, image size, ground truth (see `resolvable`).
+        """
+        if not self.resolvable:
+            raise PluginError(f"{self.stages['solver'].label} cannot run alone on a stored upstream")
+        return self.run_here(frame, self.limiter, upstream=upstream)
+
     def run(self, frame: Frame) -> FrameOutcome:
         """Run every stage on one frame; never raises for a stage's failure, only for the user's Ctrl-C.
 
@@ -190,10 +219,12 @@ class Pipeline:
         frame: Frame,
         limiter: TimeLimiter | None = None,
         on_stage: Callable[[_FrameState], None] | None = None,
+        upstream: Upstream | None = None,
     ) -> FrameOutcome:
-        """Run the stages in this process (under `limiter` if given); `on_stage` hears each stage as it starts."""
+        """Run the stages in this process (under `limiter` if given); `on_stage` hears each stage as it starts; from
+        the solver on when given a stored `upstream`."""
         state = _FrameState(on_stage)
-        work = functools.partial(self._run_stages, frame, state)
+        work = functools.partial(self._run_stages, frame, state, upstream)
         mark = interrupts.watch()
         try:
             estimate = work() if limiter is None else limiter.call(work)
@@ -219,31 +250,40 @@ class Pipeline:
             PoseEstimate.failed(message), dict(timings), **dict(counts), error=message, failed_component=component
         )
 
-    def _run_stages(self, frame: Frame, state: _FrameState) -> PoseEstimate:
-        """Run the stages, filling `state.counts` with keypoint and match counts and the matched pairs' coordinates."""
+    def _run_stages(self, frame: Frame, state: _FrameState, upstream: Upstream | None = None) -> PoseEstimate:
+        """Run the stages, filling `state.counts` with keypoint and match counts, the matched pairs' coordinates and
+        the solver's inputs."""
         kept: dict[str, Any] = {}
         counts = state.counts
         with torch.inference_mode():
-            for kind, result in self._stages(frame, state):
+            for kind, result in self._stages(frame, state, upstream):
                 _count(kind, result, counts)
                 kept[kind] = result
                 if kind == "matcher":
                     counts["matched_uv"] = kept["extractor2d"].uv[result.index2d]
                     counts["matched_xyz"] = kept["extractor3d"].xyz[result.index3d]
+                    counts["upstream"] = Upstream(kept["extractor2d"], kept["extractor3d"], result)
         return result
 
-    def _stages(self, frame: Frame, state: _FrameState):
-        """Yield (kind, output) for each stage in order, timing each one and checking its output."""
+    def _stages(self, frame: Frame, state: _FrameState, upstream: Upstream | None = None):
+        """Yield (kind, output) for each stage in order, timing each one and checking its output; the stages before
+        the solver replay `upstream` when given one."""
         hidden = frame.without_ground_truth()
-        s = self.stages
 
         def call(kind: str, *args: Any) -> Any:
-            component = s[kind]
+            component = self.stages[kind]
             state.enter(kind)
             view = frame if GROUND_TRUTH in component.consumes else hidden
             out, state.timings[kind] = _timed(component, view, *args)
             return out
 
+        up = yield from (self._upstream(call, frame) if upstream is None else self._replay(upstream))
+        solver = self.stages["solver"].label
+        yield "solver", contracts.check_estimate(call("solver", up.kp2d, up.kp3d, up.matches), solver)
+
+    def _upstream(self, call: Callable[..., Any], frame: Frame) -> Stages:
+        """Run the stages before the solver, yielding each output; returns what the solver consumes."""
+        s = self.stages
         kp2d = contracts.check_keypoints2d(call("extractor2d"), frame, s["extractor2d"].label)
         yield "extractor2d", kp2d
         kp3d = contracts.check_keypoints3d(call("extractor3d"), frame, s["extractor3d"].label)
@@ -253,7 +293,16 @@ class Pipeline:
             call("matcher", kp2d, kp3d, features), len(kp2d), len(kp3d), s["matcher"].label
         )
         yield "matcher", matches
-        yield "solver", contracts.check_estimate(call("solver", kp2d, kp3d, matches), s["solver"].label)
+        return Upstream(kp2d, kp3d, matches)
+
+    def _replay(self, upstream: Upstream) -> Stages:
+        """Yield a stored upstream's outputs as if its stages had run (untimed), its matches checked again."""
+        kp2d, kp3d = upstream.kp2d, upstream.kp3d
+        contracts.check_matches(upstream.matches, len(kp2d), len(kp3d), self.stages["matcher"].label)
+        yield "extractor2d", kp2d
+        yield "extractor3d", kp3d
+        yield "matcher", upstream.matches
+        return upstream
 
     def _features(self, call: Any, kp2d: Keypoints2D, kp3d: Keypoints3D) -> Features:
         s = self.stages

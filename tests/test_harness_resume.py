@@ -71,7 +71,8 @@ def test_a_sigkilled_run_resumes_to_the_uninterrupted_result(shared_data, tmp_pa
     killed, resumed = history(runs / "kitti-all")
     assert killed["status"] == "running" and resumed["status"] == "finished"
     assert resumed["computed"] == TOTAL - len(before) and resumed["reused"] == len(before)
-    assert [p.name for p in frames_dir.iterdir() if not p.name.endswith(".parquet")] == []  # the kill's temp swept
+    assert [p.name for p in frames_dir.iterdir() if not p.name.endswith((".parquet", ".npz"))] == []  # temp swept
+    assert len(list(frames_dir.glob("*.npz"))) == TOTAL  # each frame's upstream (the extractors differ: none shared)
 
     from i2pbench.data.kitti import KittiOdometry
 

@@ -3,8 +3,9 @@
 The driver plans the work as tasks of (combination, chunk of frames not stored yet), each frame carrying its cache
 key. Every worker receives the prepared jobs (pipelines with their weights) once, when it starts, pins its own thread
 counts so that N workers on N cores do not oversubscribe them, and warms each pipeline up before its first frame.
-`run_frame` is pure, so a frame gives the same record whichever worker runs it and the leaderboard equals a serial
-run's up to latency.
+`compute_frame` is pure, so a frame gives the same record whichever worker runs it and the leaderboard equals a
+serial run's up to latency. Local workers re-solve frames whose upstream the store holds, as a serial run does; Ray
+workers, which do not read the store, run frames whole and hand their upstreams back for the driver to store.
 
 Who writes the store: local workers write each finished frame themselves (same machine; per-frame files written
 atomically, so a killed run keeps every finished frame, as a serial run does); Ray workers hand records back to the
@@ -32,8 +33,9 @@ from ..pipeline import Combination
 from ..plugins import Registry
 from ..protocol import Protocol
 from .environment import fix_threads
-from .runner import Job, Progress, frame_key, labels, prepare, run_frame, warm_up
+from .runner import Job, Progress, compute, frame_key, labels, prepare, save
 from .store import ResultsStore
+from .upstream import StoredUpstream
 
 DEFAULT_CHUNK = 8  # frames per task: few enough to balance a small grid, enough to amortise a task's overhead
 THREAD_ENV = (
@@ -63,6 +65,7 @@ class Result:
     key: str
     record: dict[str, Any]
     stored: bool
+    upstream: StoredUpstream | None = None  # for the driver to store, when the worker did not
 
 
 @dataclass
@@ -75,6 +78,7 @@ class Work:
     invocation: str = ""
     warmup: int = 1
     store_root: str | None = None  # set: workers write each finished frame there themselves
+    overwrite: bool = False  # recompute stored upstreams too
 
 
 Deliver = Callable[[Sequence[Result]], None]
@@ -112,19 +116,21 @@ class Worker:
                 job.device = device
         self.work = work
         self.store = ResultsStore(work.store_root) if work.store_root else None
-        self.warm: set[int] = set()
+        self.warm: dict[int, set[str]] = {}
 
     def run(self, task: Task) -> Iterator[Result]:
-        """Compute the task's frames one by one, warming the job up before its first frame in this worker."""
+        """Compute the task's frames one by one (re-solving those whose upstream the store holds, when this worker
+        reads the store), warming the job up before its first frame in this worker."""
         w, job = self.work, self.work.jobs[task.job]
+        warm = self.warm.setdefault(task.job, set())
         for frame_id, key in zip(task.frame_ids, task.keys, strict=True):
-            if task.job not in self.warm and w.warmup:
-                warm_up(job, w.dataset, w.protocol, frame_id, w.warmup)
-            self.warm.add(task.job)
-            record = {**run_frame(job, w.dataset, frame_id, w.protocol), "invocation": w.invocation}
+            computed = compute(job, w.dataset, frame_id, w.protocol, self.store, warm, w.warmup, not w.overwrite)
+            record = {**computed.record, "invocation": w.invocation}
             if self.store is not None:
-                self.store.put(key, record)
-            yield Result(task.job, frame_id, key, record, self.store is not None)
+                save(self.store, key, record, computed.upstream)
+                yield Result(task.job, frame_id, key, record, True)
+            else:
+                yield Result(task.job, frame_id, key, record, False, computed.upstream)
 
 
 @dataclass
@@ -182,7 +188,7 @@ class Collector:
         fresh = [r for r in results if (r.job, r.frame_id) not in self.computed]  # a replayed frame is dropped
         for r in fresh:
             if not r.stored:
-                self.store.put(r.key, r.record)
+                save(self.store, r.key, r.record, r.upstream)
             self.plan.records[r.job, r.frame_id] = r.record
             self.computed.add((r.job, r.frame_id))
         if self.progress and fresh:
@@ -215,7 +221,8 @@ def run_grid(
     if progress and work_plan.records:
         progress(len(work_plan.records))
     if work_plan.to_compute:
-        run_plan(work_plan, Work(jobs, dataset, protocol, invocation), store, executor, progress, chunk_size)
+        work = Work(jobs, dataset, protocol, invocation, overwrite=overwrite)
+        run_plan(work_plan, work, store, executor, progress, chunk_size)
     return _frame(jobs, frame_ids, work_plan)
 
 

@@ -1,12 +1,19 @@
 """Run combinations over a dataset split, one frame at a time, into the results store.
 
 Data flows one way: dataset -> SensorFrame -> protocol -> Frame -> pipeline -> PoseEstimate -> metrics -> record.
-`run_frame` is a pure function of (job, dataset, frame id, protocol), so frames can be farmed out to workers; the
-store is the only shared state, and it is written one whole file per frame.
+`compute_frame` is a pure function of (job, dataset, frame id, protocol), so frames can be farmed out to workers;
+the store is the only shared state, and it is written one whole file per frame.
+
+Export, then evaluate: beside each record the store keeps what the frame's solver consumed (`runs.upstream`), keyed
+by everything before the solver. A frame whose record is missing but whose upstream is stored (a new solver, a
+RANSAC setting) is re-solved from it (`resolve_frame`): no dataset file is read and no extractor, encoder or matcher
+runs, yet the record is the one a whole run gives, since the solver sees the same inputs.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -27,9 +34,11 @@ from ..protocol import Protocol
 from ..types import Frame, PoseEstimate
 from ..weights import apply_checkpoint, select_checkpoint
 from .store import ResultsStore, versioned_key
+from .upstream import FORMAT, StoredUpstream
 
 Progress = Callable[[int], None]
 UNTRAINED_SEED = 0
+WHOLE, SOLVER = "pipeline", "solver"  # the two ways to compute a frame, each warmed up before its first timed frame
 
 
 @dataclass
@@ -83,14 +92,32 @@ def _build(registry: Registry, combination: Combination) -> Pipeline:
 
 def frame_key(dataset: Dataset, frame_id: str, job: Job, protocol: Protocol) -> str:
     """What is computed, versioned by the state of the frame's files: a repaired scan is recomputed, not reused."""
-    parts = {
+    return versioned_key(_key_parts(dataset, frame_id, job, protocol), dataset.fingerprint(frame_id))
+
+
+def upstream_key(dataset: Dataset, frame_id: str, job: Job, protocol: Protocol) -> str:
+    """`frame_key` less the solver: what the solver consumes, shared by every solver of a sweep."""
+    parts = _key_parts(dataset, frame_id, job, protocol)
+    parts["stages"] = {kind: stage for kind, stage in parts["stages"].items() if kind != "solver"}
+    return versioned_key({**parts, "upstream": FORMAT}, dataset.fingerprint(frame_id))
+
+
+def _key_parts(dataset: Dataset, frame_id: str, job: Job, protocol: Protocol) -> dict[str, Any]:
+    return {
         "data": dataset.identity(),
         "frame": frame_id,
         "stages": job.stages(),
         "weights": job.weights,
         "protocol": protocol.card(),
     }
-    return versioned_key(parts, dataset.fingerprint(frame_id))
+
+
+@dataclass
+class Computed:
+    """A frame's record, and its upstream when that is new (to store beside the record)."""
+
+    record: dict[str, Any]
+    upstream: StoredUpstream | None = None
 
 
 def run_job(
@@ -105,25 +132,60 @@ def run_job(
     progress: Progress | None = None,
     invocation: str = "",
 ) -> list[dict[str, Any]]:
-    """Run one combination over frames, reusing those already stored; returns one record per frame.
+    """Run one combination over frames, reusing those already stored (and re-solving those whose upstream is);
+    returns one record per frame.
 
     The warm-up runs just before the first frame that is actually computed, so a fully cached job costs no
-    pipeline run at all.
+    pipeline run at all, and a re-solved one warms up its solver only.
     """
-    records, warm = [], warmup == 0
+    records, warm = [], set[str]()
     for frame_id in frame_ids:
         key = frame_key(dataset, frame_id, job, protocol)
         record = None if overwrite else store.get(key)
         if record is None:
-            if not warm:
-                warm_up(job, dataset, protocol, frame_id, warmup)
-                warm = True
-            record = {**run_frame(job, dataset, frame_id, protocol), "invocation": invocation}
-            store.put(key, record)
+            computed = compute(job, dataset, frame_id, protocol, store, warm, warmup, reuse_upstream=not overwrite)
+            record = {**computed.record, "invocation": invocation}
+            save(store, key, record, computed.upstream)
         records.append({**record, **labels(job)})  # the key holds resolved configs: labels follow this spelling
         if progress:
             progress(1)
     return records
+
+
+def compute(
+    job: Job,
+    dataset: Dataset,
+    frame_id: str,
+    protocol: Protocol,
+    store: ResultsStore | None,
+    warm: set[str],
+    warmup: int = 1,
+    reuse_upstream: bool = True,
+) -> Computed:
+    """The frame's record: re-solved from its stored upstream when the store has it and the solver can run alone,
+    else from the whole pipeline. The first frame each way is preceded by `warmup` untimed runs (`warm` remembers)."""
+    stored, read = None, 0.0
+    if store is not None and reuse_upstream and job.pipeline.resolvable:
+        start = time.perf_counter()
+        stored = store.get_upstream(upstream_key(dataset, frame_id, job, protocol), StoredUpstream.decode)
+        read = time.perf_counter() - start
+    if stored is None:
+        if WHOLE not in warm and warmup:
+            warm_up(job, dataset, protocol, frame_id, warmup)
+        warm |= {WHOLE, SOLVER}
+        return compute_frame(job, dataset, frame_id, protocol)
+    if SOLVER not in warm:
+        for _ in range(warmup):
+            job.pipeline.resolve(stored.solver_frame(), stored.upstream)
+        warm.add(SOLVER)
+    return resolve_frame(job, dataset, frame_id, protocol, stored, read)
+
+
+def save(store: ResultsStore, key: str, record: dict[str, Any], upstream: StoredUpstream | None) -> None:
+    """Store a computed frame: its upstream first, so a record on disk always has the upstream it names."""
+    if upstream is not None:
+        store.put_upstream(record["upstream_key"], upstream.encode())
+    store.put(key, record)
 
 
 def warm_up(job: Job, dataset: Dataset, protocol: Protocol, frame_id: str, times: int) -> None:
@@ -137,6 +199,11 @@ def warm_up(job: Job, dataset: Dataset, protocol: Protocol, frame_id: str, times
 
 
 def run_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> dict[str, Any]:
+    """The record of one frame run through the whole pipeline (`compute_frame` without the upstream)."""
+    return compute_frame(job, dataset, frame_id, protocol).record
+
+
+def compute_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> Computed:
     """Load, run and score one frame; a dataset error becomes a failed record naming the file."""
     start = time.perf_counter()
     try:
@@ -146,10 +213,31 @@ def run_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> 
             PoseEstimate.failed(str(exc)), {}, error=str(exc), failed_component=f"dataset {dataset.name!r}"
         )
         elapsed = time.perf_counter() - start
-        return _record(job, dataset, frame_id, protocol, outcome, None, elapsed, elapsed)
+        return Computed(_record(job, dataset, frame_id, protocol, outcome, None, elapsed, elapsed))
     loaded = time.perf_counter()
     outcome = job.pipeline.run(frame)
-    return _record(job, dataset, frame_id, protocol, outcome, frame, loaded - start, time.perf_counter() - start)
+    record = _record(job, dataset, frame_id, protocol, outcome, frame, loaded - start, time.perf_counter() - start)
+    upstream = StoredUpstream.of(frame, outcome)
+    record["upstream_key"] = upstream_key(dataset, frame_id, job, protocol) if upstream is not None else ""
+    return Computed(record, upstream)
+
+
+def resolve_frame(
+    job: Job, dataset: Dataset, frame_id: str, protocol: Protocol, stored: StoredUpstream, read_s: float = 0.0
+) -> Computed:
+    """Run the solver alone on a frame's stored upstream and score it; the record is a whole run's, but
+    `stages_run` says "solver", `t_load_s` is the upstream's read and the upstream stages' times are the stored ones
+    (so `t_total_s` still estimates a whole frame's latency)."""
+    start = time.perf_counter()
+    frame = stored.solver_frame()
+    outcome = job.pipeline.resolve(frame, stored.upstream)
+    ran = ",".join(outcome.timings)
+    timings = {kind: t for kind, t in stored.timings.items() if not math.isnan(t)}  # NaN: that stage did not run
+    outcome = dataclasses.replace(outcome, timings={**timings, **outcome.timings})
+    wall = read_s + time.perf_counter() - start
+    record = _record(job, dataset, frame_id, protocol, outcome, frame, read_s, wall)
+    record.update(stages_run=ran, upstream_key=upstream_key(dataset, frame_id, job, protocol))
+    return Computed(record)
 
 
 def labels(job: Job) -> dict[str, str]:
@@ -196,6 +284,8 @@ def _record(
         "wall_s": wall,
         "T_pred": (T_pred.ravel().tolist() if T_pred is not None else None),
         "T_gt": (T_gt.ravel().tolist() if T_gt is not None else None),
+        "stages_run": ",".join(outcome.timings),  # the stages this record's computation ran (and timed)
+        "upstream_key": "",  # the stored upstream the solver consumed, once stored
     }
     record.update({f"t_{kind}_s": outcome.timings.get(kind, np.nan) for kind in STAGE_ORDER})
     return record

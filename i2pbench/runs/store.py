@@ -11,6 +11,10 @@ stray temp file, which readers ignore and the next store opening removes once it
 process loses nothing the kernel already holds; only a power cut could, and then the unreadable file is detected on
 read, reported by path, set aside and recomputed. So is a readable file that is not a result (missing or mistyped
 columns, not one row): it would otherwise become a bogus leaderboard row.
+
+Beside the records, `frames/<key>.npz` files hold what each frame's solver consumed (keypoints and matches, see
+`runs.upstream`), keyed by the stages before the solver, so a solver sweep can reuse them; they are written,
+superseded and set aside the same way. A store without them (written before they existed) still reads as before.
 """
 
 from __future__ import annotations
@@ -19,10 +23,11 @@ import hashlib
 import json
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
+import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -30,6 +35,8 @@ import pyarrow.parquet as pq
 TEMP_SUFFIX = ".tmp"
 CORRUPT_SUFFIX = ".corrupt"
 VERSION_SEP = "-"
+RECORD_SUFFIX, UPSTREAM_SUFFIX = ".parquet", ".npz"
+T = TypeVar("T")
 
 
 def _text(t: pa.DataType) -> bool:
@@ -83,7 +90,7 @@ class ResultsStore:
         self.root = Path(root)
         self.frames_dir = self.root / "frames"
         self.frames_dir.mkdir(parents=True, exist_ok=True)
-        self._versions: dict[str, set[str]] | None = None  # slot -> stored keys, listed on the first put
+        self._versions: dict[str, dict[str, set[str]]] = {}  # suffix -> slot -> stored keys, listed on the first put
         self._sweep_dead_temps()
 
     def path(self, key: str) -> Path:
@@ -98,21 +105,52 @@ class ResultsStore:
             os.replace(tmp, self.path(key))
         finally:
             tmp.unlink(missing_ok=True)
-        self._supersede(key)
+        self._supersede(key, RECORD_SUFFIX)
 
-    def _supersede(self, key: str) -> None:
+    def upstream_path(self, key: str) -> Path:
+        return self.frames_dir / f"{key}{UPSTREAM_SUFFIX}"
+
+    def put_upstream(self, key: str, arrays: Mapping[str, np.ndarray]) -> None:
+        """Store what one frame's solver consumed, as arrays, atomically like a record (uncompressed: float32 edge
+        coordinates gain little from it)."""
+        tmp = self.frames_dir / f".{key}{UPSTREAM_SUFFIX}.{os.getpid()}{TEMP_SUFFIX}"
+        try:
+            with open(tmp, "wb") as file:  # a file object: given a path, numpy would append its own .npz
+                np.savez(file, **arrays)
+            os.replace(tmp, self.upstream_path(key))
+        finally:
+            tmp.unlink(missing_ok=True)
+        self._supersede(key, UPSTREAM_SUFFIX)
+
+    def get_upstream(self, key: str, decode: Callable[[Mapping[str, np.ndarray]], T]) -> T | None:
+        """`decode` of the stored arrays, or None when absent, unreadable or refused by `decode` (then reported and
+        set aside: the frame is run whole again)."""
+        path = self.upstream_path(key)
+        if not path.is_file():
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as arrays:
+                return decode(arrays)
+        except FileNotFoundError:
+            return None
+        except Exception as exc:  # zipfile, numpy and decode's ValueError all mean: compute it again
+            self._set_aside(path, exc)
+            return None
+
+    def _supersede(self, key: str, suffix: str) -> None:
         """Delete the other versions of the key's slot (results of data that has changed since), so that readers of
         the whole store (`load()`, reports) see one result per slot."""
         slot, sep, _ = key.partition(VERSION_SEP)
         if not sep:
             return
-        if self._versions is None:  # listed once per store: a directory scan per frame would grow with the store
-            self._versions = {}
-            for path in self.frames_dir.glob("*.parquet"):
-                self._versions.setdefault(path.stem.partition(VERSION_SEP)[0], set()).add(path.stem)
-        for old in self._versions.get(slot, set()) - {key}:
-            self.path(old).unlink(missing_ok=True)
-        self._versions[slot] = {key}
+        versions = self._versions.get(suffix)
+        if versions is None:  # listed once per store: a directory scan per frame would grow with the store
+            versions = self._versions[suffix] = {}
+            for path in self.frames_dir.glob(f"*{suffix}"):
+                versions.setdefault(path.stem.partition(VERSION_SEP)[0], set()).add(path.stem)
+        for old in versions.get(slot, set()) - {key}:
+            (self.frames_dir / f"{old}{suffix}").unlink(missing_ok=True)
+        versions[slot] = {key}
 
     def get(self, key: str) -> dict[str, Any] | None:
         """The stored record, or None when absent, unreadable or not a result (then reported and set aside for

@@ -1,0 +1,56 @@
+"""`i2pbench evaluate RUN_DIR`: recompute metrics and the leaderboard from stored results, other thresholds allowed."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+THRESHOLDS = {  # option -> (protocol card field, metavar, what it sets)
+    "--acc-rre": ("acc_rre_deg", "DEG", "success needs RRE below this"),
+    "--acc-rte": ("acc_rte_m", "M", "success needs RTE below this"),
+    "--filter-rre": ("filter_rre_deg", "DEG", "mean and std use frames with RRE below this"),
+    "--filter-rte": ("filter_rte_m", "M", "mean and std use frames with RTE below this"),
+}
+
+
+def positive_float(value: str) -> float:
+    try:
+        number = float(value)
+    except ValueError:
+        number = float("nan")
+    if not number > 0:
+        raise argparse.ArgumentTypeError(f"{value!r} is not a positive number")
+    return number
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("evaluate", help="recompute metrics and the leaderboard from a runs directory, no stage run")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="per-frame results of `i2pbench run` (runs/<dataset>-<split>)")
+    p.add_argument("--invocation", default="last", help="whose grid: an invocation id (or its start, see "
+                   "RUN_DIR/invocations), 'last' (default), or 'all' the records in the store")  # fmt: skip
+    for option, (field, metavar, what) in THRESHOLDS.items():
+        p.add_argument(option, dest=field, type=positive_float, metavar=metavar, help=f"{what} (default: the run's)")
+    p.add_argument("--out", help="also write the leaderboard to STEM.csv, STEM.md and STEM.parquet")
+
+
+def run(args: argparse.Namespace) -> int:
+    from .. import leaderboard
+    from ..errors import I2PBenchError
+    from ..runs.evaluate import evaluate
+
+    thresholds = {field: getattr(args, field) for field, *_ in THRESHOLDS.values()}
+    result = evaluate(args.run_dir, args.invocation, **thresholds)
+    print(leaderboard.to_markdown(result.board))
+    p = result.protocol
+    grid = "" if result.expected is None else f" of the grid's {result.expected}"
+    print(f"\n{len(result.records)} per-frame records{grid}; success: RRE < {p.acc_rre_deg:g}° and RTE < "
+          f"{p.acc_rte_m:g} m; mean ± std over RRE < {p.filter_rre_deg:g}° and RTE < {p.filter_rte_m:g} m",
+          file=sys.stderr)  # fmt: skip
+    if args.out:
+        try:
+            paths = leaderboard.write(result.board, Path(args.out))
+        except OSError as exc:
+            raise I2PBenchError(f"--out {args.out}: could not write the leaderboard ({exc.strerror or exc})") from None
+        print(f"written: {', '.join(str(path) for path in paths)}", file=sys.stderr)
+    return 0

@@ -1,0 +1,130 @@
+"""Metrics and the leaderboard recomputed from a runs directory alone: no dataset file is read, no stage runs.
+
+The records of one invocation's grid (its combinations, frames and protocol, as its `invocations/<id>.json` file
+lists them) are read back, their pose errors recomputed from the stored T_pred and T_gt, and the leaderboard built
+under the run's protocol card, or under other success and filter thresholds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from .. import leaderboard
+from ..errors import I2PBenchError
+from ..metrics import FAILED, pose_errors
+from ..protocol import Protocol
+from .invocation import history
+from .store import ResultsStore
+
+LAST, ALL = "last", "all"
+
+
+@dataclasses.dataclass
+class Evaluation:
+    """A leaderboard recomputed from the store, what it was computed under, and from which records."""
+
+    board: pd.DataFrame
+    protocol: Protocol
+    records: pd.DataFrame
+    expected: int | None  # frames x combinations of the chosen invocation (None: every record)
+
+
+def evaluate(run_dir: str | Path, invocation: str = LAST, **thresholds: float | None) -> Evaluation:
+    """The leaderboard of `invocation`'s grid (or of ALL records) from the store; `thresholds` override the protocol
+    card's fields (acc_rre_deg, acc_rte_m, filter_rre_deg, filter_rte_m; None keeps the card's)."""
+    root = Path(run_dir)
+    if not (root / "frames").is_dir():
+        raise I2PBenchError(f"{root}: no per-frame results here (expected a folder `i2pbench run` wrote, such as "
+                            "runs/<dataset>-<split>)")  # fmt: skip
+    runs, records = history(root), ResultsStore(root).load()
+    if records.empty:
+        raise I2PBenchError(f"{root}: the store holds no per-frame records")
+    expected = None
+    if invocation == ALL:
+        card = _single_card(records, runs, root)
+    else:
+        meta = _invocation(runs, invocation, root)
+        records, card = _grid(records, meta), meta["protocol"]
+        expected = len(meta["frames"]) * len(meta["combinations"])
+        if records.empty:
+            raise I2PBenchError(f"{root}: none of invocation {meta['id']}'s frames is in the store")
+    protocol = dataclasses.replace(Protocol(**card), **{k: v for k, v in thresholds.items() if v is not None})
+    records = rescore(records)
+    return Evaluation(leaderboard.build(records, protocol), protocol, records, expected)
+
+
+def rescore(records: pd.DataFrame) -> pd.DataFrame:
+    """The records with rte_m, rre_deg and geodesic_deg computed again from T_pred and T_gt, as a run scores them."""
+    errors = [
+        pose_errors(_matrix(pred), gt) if (gt := _matrix(truth)) is not None else FAILED
+        for pred, truth in zip(records["T_pred"], records["T_gt"], strict=True)
+    ]
+    return records.assign(
+        rte_m=[e.rte_m for e in errors],
+        rre_deg=[e.rre_deg for e in errors],
+        geodesic_deg=[e.geodesic_deg for e in errors],
+    )
+
+
+def _matrix(values: Any) -> np.ndarray | None:
+    if values is None or (np.ndim(values) == 0 and pd.isna(values)):
+        return None
+    return np.asarray(values, np.float64).reshape(4, 4)
+
+
+def _invocation(runs: list[dict[str, Any]], wanted: str, root: Path) -> dict[str, Any]:
+    """The chosen invocation's metadata: the last one, or the one whose id starts with `wanted`."""
+    if not runs:
+        raise I2PBenchError(f"{root}: no invocations/ files, so no grid to evaluate; pass --invocation all")
+    if wanted == LAST:
+        return runs[-1]
+    found = [meta for meta in runs if str(meta.get("id", "")).startswith(wanted)]
+    if len(found) != 1:
+        ids = ", ".join(str(meta.get("id")) for meta in runs)
+        raise I2PBenchError(f"--invocation {wanted!r} names {'no' if not found else 'more than one'} run; ids: {ids}")
+    return found[0]
+
+
+def _grid(records: pd.DataFrame, meta: dict[str, Any]) -> pd.DataFrame:
+    """The records of an invocation's grid, in the run's order (combination by combination, frames in order), so
+    ties in the leaderboard's sort fall as they did in the run."""
+    keys = [_combination_key(describe) for describe in meta["combinations"]]
+    frames = list(meta["frames"])
+    protocol = Protocol(**meta["protocol"]).identity()
+    data = meta.get("dataset", {})
+    chosen = (
+        records["combination_key"].isin(keys)
+        & records["frame_id"].isin(frames)
+        & (records["protocol"] == protocol)
+        & (records["dataset"] == data.get("dataset", records["dataset"]))
+        & (records["split"] == data.get("split", records["split"]))
+    )
+    if meta.get("rows"):  # a finished run names its rows' weights: other weights' records of these stages are not its
+        chosen &= records["weights"].isin({row["weights"] for row in meta["rows"]})
+    order = records["combination_key"].map({key: i for i, key in enumerate(keys)}) * len(frames)
+    order += records["frame_id"].map({frame: i for i, frame in enumerate(frames)})
+    return records[chosen].assign(_order=order[chosen]).sort_values("_order", kind="stable").drop(columns="_order")
+
+
+def _combination_key(describe: dict[str, dict[str, Any]]) -> str:
+    """`Combination.key()` of a combination an invocation describes, without importing the pipeline (and torch)."""
+    return hashlib.sha256(json.dumps(describe, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _single_card(records: pd.DataFrame, runs: list[dict[str, Any]], root: Path) -> dict[str, Any]:
+    """The protocol card shared by all the records (from the invocation that recorded it); refused when they mix."""
+    identities = sorted(records["protocol"].unique())
+    if len(identities) != 1:
+        raise I2PBenchError(f"{root}: the records span {len(identities)} protocols ({', '.join(identities)}); "
+                            "evaluate one invocation's grid with --invocation ID")  # fmt: skip
+    cards = [meta["protocol"] for meta in runs if Protocol(**meta["protocol"]).identity() == identities[0]]
+    if not cards and Protocol().identity() != identities[0]:
+        raise I2PBenchError(f"{root}: no invocation records protocol {identities[0]}'s card")
+    return cards[0] if cards else Protocol().card()
