@@ -5,6 +5,7 @@ A bare `.dist-info` folder on PYTHONPATH is an installed distribution to importl
 """
 
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -42,8 +43,19 @@ def popen(*args: str, env: dict[str, str], cwd: Path) -> subprocess.Popen:
     that processes it leaves behind cannot block the test reading it."""
     with open(cwd / LOG, "w") as log:
         return subprocess.Popen(
-            [sys.executable, "-m", "i2pbench.cli", *args], env=env, cwd=cwd, stdout=log, stderr=subprocess.STDOUT
+            [sys.executable, "-m", "i2pbench.cli", *args],
+            env=env,
+            cwd=cwd,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            preexec_fn=_default_sigint,
         )
+
+
+def _default_sigint() -> None:
+    """a child that hears Ctrl-C whatever started the tests: an ignored SIGINT (a background job, nohup, some CI
+    runners) is inherited across exec, and the child would never see the test's SIGINT."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def wait_for_markers(markers: Path, run: subprocess.Popen, cwd: Path, count: int = 1, limit_s: float = 240) -> set[int]:

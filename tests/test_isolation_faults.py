@@ -60,8 +60,17 @@ def test_a_stage_exiting_or_interrupting_fails_its_frame_by_name(
     assert records.loc["c", "status"] == "ok" and records.loc["c", "n_kp3d"] == 3
 
 
+@pytest.fixture
+def python_sigint():
+    """Python's own SIGINT handler for the test, whatever the test process inherited (an ignored SIGINT, or a
+    handler an earlier test or library left): the behaviour under test is the default one."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 @pytest.mark.parametrize("limit", [30.0, None], ids=["in-a-worker-thread", "in-the-caller-thread"])
-def test_a_sigint_during_a_frame_stops_the_run(registry, limit):
+def test_a_sigint_during_a_frame_stops_the_run(registry, limit, python_sigint):
     frame = Protocol().apply(registry.dataset("toy")("test").load("a"))
     pipeline = Pipeline.build(registry, Combination({**TOY, "extractor3d": "ctrl-c"}, {}), timeout_s=limit)
     with pytest.raises(KeyboardInterrupt):
