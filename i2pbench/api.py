@@ -1,4 +1,10 @@
-"""What plugin authors import: `from i2pbench.api import hookimpl, Extractor2D, ...`."""
+"""What plugin authors import: `from i2pbench.api import hookimpl, Extractor2D, ...`.
+
+`LearnedComponent` is imported on first use (it subclasses torch.nn.Module), so a plugin of classic stages imports
+this module without importing torch.
+"""
+
+from typing import TYPE_CHECKING, Any
 
 from .components import (
     FEATURES2D,
@@ -15,7 +21,6 @@ from .components import (
     Exchanger,
     Extractor2D,
     Extractor3D,
-    LearnedComponent,
     Matcher,
     PoseSolver,
 )
@@ -23,6 +28,9 @@ from .data.base import Dataset
 from .errors import DataError, StageError
 from .plugins import hookimpl
 from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
+
+if TYPE_CHECKING:
+    from .learned import LearnedComponent
 
 __all__ = [
     "FEATURES2D",
@@ -54,3 +62,11 @@ __all__ = [
     "StageError",
     "hookimpl",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name == "LearnedComponent":
+        from .learned import LearnedComponent
+
+        return LearnedComponent
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

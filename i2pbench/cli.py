@@ -1,19 +1,38 @@
-"""The `i2pbench` command line: each subcommand lives in its own module under `i2pbench.commands`."""
+"""The `i2pbench` command line: each subcommand lives in its own module under `i2pbench.commands`.
+
+Start-up time matters for a command line: only the invoked command's module is imported and its options built; the
+others appear in `--help` by their summary (pip keeps its commands the same way), so `i2pbench plugins` never pays
+for the pandas that `compare` imports to describe its options. See docs/performance.md.
+"""
 
 from __future__ import annotations
 
 import argparse
+import gc
 import importlib
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from typing import NoReturn
 
 from .errors import I2PBenchError
-from .progress import set_quiet
 
 COMMANDS = ("plugins", "run", "train", "diagnose", "domain-gap", "data", "compare", "evaluate", "viz", "report")
 PIPELINE_COMMANDS = ("run", "train", "viz")  # those that build pipelines, which read the stage time limit
+# each command's one-line help, shown without importing its module (a command left out is imported to build --help);
+# tests/test_cli_startup.py checks they equal the modules' own
+SUMMARIES = {
+    "plugins": "list installed plugins and the components they register",
+    "run": "run combinations of stages over a dataset split and print the leaderboard",
+    "train": "train a combination's learned stages on a dataset split",
+    "diagnose": "share of 3D edge points within eps_c of a 2D edge pixel, per extractor pair",
+    "domain-gap": "edge, LiDAR and image statistics of two datasets side by side",
+    "data": "dataset utilities",
+    "compare": "compare a new leaderboard with a baseline under per-metric tolerances (exit 1 on a regression)",
+    "evaluate": "recompute metrics and the leaderboard from a runs directory, no stage run",
+    "viz": "draw one frame's LiDAR points under the initial, ground-truth and predicted poses",
+    "report": "write a self-contained HTML report of a runs directory (e.g. runs/kitti-all)",
+}
 
 
 def command_module(name: str) -> str:
@@ -29,12 +48,22 @@ class ArgumentParser(argparse.ArgumentParser):
         self.exit(2, f"i2pbench: error: {message}\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(full: Collection[str] = COMMANDS) -> argparse.ArgumentParser:
+    """The command line; commands outside `full` get only their name and summary (their options are not built)."""
     parser = ArgumentParser(prog="i2pbench", description="Benchmark image-to-LiDAR registration.")
     sub = parser.add_subparsers(dest="command", required=True)
     for name in COMMANDS:
-        importlib.import_module(command_module(name)).add_parser(sub)
+        if name in full or name not in SUMMARIES:
+            importlib.import_module(command_module(name)).add_parser(sub)
+        else:
+            sub.add_parser(name, help=SUMMARIES[name])
     return parser
+
+
+def invoked(argv: Sequence[str]) -> tuple[str, ...]:
+    """The command `argv` names (the top level takes no option with a value), or none for `--help` and typos."""
+    first = next((arg for arg in argv if not arg.startswith("-")), None)
+    return (first,) if first in COMMANDS else ()
 
 
 def check_stage_timeout() -> None:
@@ -50,8 +79,24 @@ def check_stage_timeout() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    set_quiet(getattr(args, "quiet", False))  # reaches progress bars deep in library code and worker processes
+    """Run one command. As the program (`argv` None: read sys.argv), freeze the garbage collector when done: the
+    collections during interpreter shutdown then skip the objects torch and pandas made, which took 0.5-1 s here only
+    to free memory the process hands back anyway. atexit handlers and refcount finalizers still run; only garbage in
+    reference cycles goes unfinalized, and commands close their files with `with`. In-process callers (tests) pass
+    `argv` and keep a normal collector."""
+    try:
+        return _run(sys.argv[1:] if argv is None else argv)
+    finally:
+        if argv is None:
+            gc.freeze()
+
+
+def _run(argv: Sequence[str]) -> int:
+    args = build_parser(full=invoked(argv)).parse_args(argv)
+    if getattr(args, "quiet", False):  # reaches progress bars deep in library code and worker processes
+        from .progress import set_quiet
+
+        set_quiet(True)
     try:
         if args.command in PIPELINE_COMMANDS:
             check_stage_timeout()

@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Mapping
-from typing import Any, ClassVar, Protocol, runtime_checkable
-
-import torch
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 from .errors import PluginError
 from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
+
+if TYPE_CHECKING:  # torch is imported where a learned stage is built, not by every command that names stages
+    import torch
 
 # The values that can flow between stages; a frame always provides "image" and "points".
 IMAGE, POINTS, GROUND_TRUTH = "image", "points", "ground_truth"
@@ -153,22 +154,16 @@ class PoseSolver(Component):
         raise NotImplementedError
 
 
-class LearnedComponent(Component, torch.nn.Module):
-    """A component with parameters; its weights live in a checkpoint shared by the pipeline's learned stages."""
-
-    learned = True
-    # config keys that only steer inference (score thresholds, filters): a checkpoint fits whatever their values, so
-    # `--conf matcher.filter_threshold=0.2` can sweep them over shipped weights
-    runtime_keys: ClassVar[frozenset[str]] = frozenset()
-
-    def __init__(self, conf: Mapping[str, Any] | None = None) -> None:
-        torch.nn.Module.__init__(self)
-        Component.__init__(self, conf)
-
-    __repr__ = Component.__repr__
-
-
 STAGE_BASES: dict[str, type[Component]] = {
     cls.kind: cls for cls in (Extractor2D, Extractor3D, Encoder2D, Encoder3D, Exchanger, Matcher, PoseSolver)
 }
 STAGE_ORDER: tuple[str, ...] = tuple(STAGE_BASES)
+
+
+def __getattr__(name: str) -> Any:
+    """`LearnedComponent` subclasses torch.nn.Module, so it lives in i2pbench.learned and is imported on first use."""
+    if name == "LearnedComponent":
+        from .learned import LearnedComponent
+
+        return LearnedComponent
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -2,6 +2,10 @@
 
 A plugin is any module or object with functions decorated by `i2pbench.hookimpl`, exposed through the entry-point
 group `i2pbench`. Built-in stages are registered this way too.
+
+Components and datasets are registered as a class, `register(cls)`, or by import path and name,
+`register("package.module:Class", name="x")`: then the class is imported only when a run uses it, so a plugin whose
+modules import torch (or any heavy library) costs `i2pbench plugins` and other runs nothing.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ Register = Callable[..., None]
 
 @hookspec
 def register_datasets(register: Register) -> None:
-    """Register `i2pbench.data.Dataset` subclasses: `register(DatasetClass)`, keyed by the class's `name`."""
+    """Register `i2pbench.data.Dataset` subclasses: `register(DatasetClass)` (or by path), keyed by its `name`."""
 
 
 @hookspec

@@ -9,11 +9,17 @@ a class that is no component) is skipped whole, with a warning, and listed as fa
 package must not take every command down with it, `i2pbench plugins` included. The built-in plugins register first,
 so a clash with one of them skips the newcomer and keeps the built-in; between two others the one loaded later
 (entry points in name order) is skipped. `strict=True` raises instead, for tests and plugin authors.
+
+A component or dataset may be registered by import path, `register("package.module:Class", name="x")`: the registry
+keeps its name and imports the class on first use, so listing plugins, or running other stages, never imports what
+it needs (EdgeRegNet's torch). A path that cannot be imported is an error when the component is used (`strict=True`
+imports every path while registering).
 """
 
 from __future__ import annotations
 
 import difflib
+import importlib
 import importlib.metadata
 import os
 import sys
@@ -54,14 +60,45 @@ class Preset:
     plugin: str
 
 
+@dataclass(frozen=True)
+class LazyComponent:
+    """A component or dataset registered by import path and name, not yet imported."""
+
+    path: str  # "package.module:Class"
+    kind: str  # a stage kind, or "dataset"
+    name: str
+    plugin: str
+
+    def resolve(self) -> type:
+        """Import the class and check it is what was registered: the hook's base class, and the same `name`."""
+        module, _, qualname = self.path.partition(":")
+        try:
+            cls: Any = importlib.import_module(module)
+            for attr in qualname.split("."):
+                cls = getattr(cls, attr)
+        except (Exception, SystemExit) as exc:  # a broken plugin fails the command that uses it, with its name
+            raise PluginError(
+                f"plugin {self.plugin!r} registered {self.kind} {self.name!r} as {self.path!r}, which cannot be "
+                f"imported: {type(exc).__name__}: {exc}"
+            ) from exc
+        _check_class(cls, self.kind, self.plugin)
+        if cls.name != self.name:
+            raise PluginError(
+                f"plugin {self.plugin!r} registered {self.path} as {self.kind} {self.name!r}, "
+                f"but its name is {cls.name!r}"
+            )
+        return cls
+
+
+Entry = tuple[Any, str]  # (class or LazyComponent, plugin)
+
+
 @dataclass
 class Registry:
     """Every component, dataset, preset and shipped checkpoint the loaded plugins registered."""
 
-    components: dict[str, dict[str, tuple[type[Component], str]]] = field(
-        default_factory=lambda: {kind: {} for kind in STAGE_BASES}
-    )
-    datasets: dict[str, tuple[type[Dataset], str]] = field(default_factory=dict)
+    components: dict[str, dict[str, Entry]] = field(default_factory=lambda: {kind: {} for kind in STAGE_BASES})
+    datasets: dict[str, Entry] = field(default_factory=dict)
     presets: dict[str, Preset] = field(default_factory=dict)
     weights: list[tuple[str, str]] = field(default_factory=list)  # (path, plugin)
     plugins: list[PluginInfo] = field(default_factory=list)
@@ -69,16 +106,25 @@ class Registry:
     def component(self, kind: str, name: str) -> type[Component]:
         if kind not in self.components:
             raise PluginError(f"unknown stage kind {kind!r}; kinds are {list(self.components)}")
-        return self.components[kind][_lookup(self.components[kind], name, kind)][0]
+        return _resolved(self.components[kind], _lookup(self.components[kind], name, kind))
 
     def dataset(self, name: str) -> type[Dataset]:
-        return self.datasets[_lookup(self.datasets, name, "dataset")][0]
+        return _resolved(self.datasets, _lookup(self.datasets, name, "dataset"))
 
     def preset(self, name: str) -> Preset:
         return self.presets[_lookup(self.presets, name, "preset")]
 
     def owner(self, kind: str, name: str) -> str:
         return self.components[kind][name][1]
+
+
+def _resolved(table: dict[str, Entry], name: str) -> Any:
+    """The class registered as `name`, imported now if it was registered by path (and kept for the next call)."""
+    entry, plugin = table[name]
+    if isinstance(entry, LazyComponent):
+        entry = entry.resolve()
+        table[name] = (entry, plugin)
+    return entry
 
 
 def _lookup(table: dict[str, Any], name: str, what: str) -> str:
@@ -145,41 +191,56 @@ def _warn(plugin: str, problem: str) -> None:
     )
 
 
-def _collect(pm: pluggy.PluginManager, plugin: str, hook_name: str) -> list[tuple[Any, ...]]:
+def _collect(pm: pluggy.PluginManager, plugin: str, hook_name: str) -> list[tuple[tuple[Any, ...], dict[str, Any]]]:
     """What one plugin registers from one hook (each plugin is called on its own, so it owns what it registers)."""
-    out: list[tuple[Any, ...]] = []
+    out: list[tuple[tuple[Any, ...], dict[str, Any]]] = []
     for impl in getattr(pm.hook, hook_name).get_hookimpls():
         if impl.plugin_name == plugin:
-            impl.function(register=lambda *args: out.append(args))
+            impl.function(register=lambda *args, **kwargs: out.append((args, kwargs)))
     return out
 
 
-def _add_component(registry: Registry, kind: str, cls: type, plugin: str) -> None:
-    base = STAGE_BASES[kind]
+def _check_class(cls: Any, kind: str, plugin: str) -> None:
+    base = Dataset if kind == "dataset" else STAGE_BASES[kind]
     if not (isinstance(cls, type) and issubclass(cls, base)):
         raise PluginError(f"plugin {plugin!r} registered {cls!r} as a {kind}, but it does not subclass {base.__name__}")
     if not cls.name:
         raise PluginError(f"plugin {plugin!r} registered {cls.__name__} without a `name`")
-    table = registry.components[kind]
-    if cls.name in table and table[cls.name][0] is not cls:
+
+
+def _entry(kind: str, plugin: str, target: Any, name: str | None = None) -> tuple[str, Any]:
+    """`register(cls)` or `register("package.module:Class", name=...)` -> (name, class or LazyComponent)."""
+    if not isinstance(target, str):
+        _check_class(target, kind, plugin)
+        if name is not None and name != target.name:
+            raise PluginError(
+                f"plugin {plugin!r} registered {target.__name__} as {name!r}, but its name is {target.name!r}"
+            )
+        return target.name, target
+    module, _, qualname = target.partition(":")
+    if not (module and qualname and isinstance(name, str) and name):
         raise PluginError(
-            f"{kind} name {cls.name!r} is registered by both plugin {table[cls.name][1]!r} and {plugin!r}"
+            f"plugin {plugin!r} registered {kind} {target!r}: a path needs the form 'package.module:Class' and a name, "
+            "register('package.module:Class', name='my-name')"
         )
-    table[cls.name] = (cls, plugin)
+    return name, LazyComponent(target, kind, name, plugin)
 
 
-def _add_dataset(registry: Registry, cls: type, plugin: str) -> None:
-    if not (isinstance(cls, type) and issubclass(cls, Dataset) and cls.name):
-        raise PluginError(f"plugin {plugin!r} registered {cls!r} as a dataset; it must subclass Dataset and set name")
-    if cls.name in registry.datasets and registry.datasets[cls.name][0] is not cls:
-        raise PluginError(
-            f"dataset {cls.name!r} is registered by both {registry.datasets[cls.name][1]!r} and {plugin!r}"
-        )
-    registry.datasets[cls.name] = (cls, plugin)
+def _same(a: Any, b: Any) -> bool:
+    """Whether two registrations are one class (registered twice, or once eagerly and once by its path)."""
+    if a is b:
+        return True
+    paths = [x.path if isinstance(x, LazyComponent) else f"{x.__module__}:{x.__qualname__}" for x in (a, b)]
+    return (isinstance(a, LazyComponent) or isinstance(b, LazyComponent)) and paths[0] == paths[1]
 
 
-def _add_preset(registry: Registry, args: tuple[Any, ...], plugin: str) -> None:
-    name, combinations, description = (list(args) + [""])[:3]
+def _add(table: dict[str, Entry], what: str, name: str, entry: Any, plugin: str) -> None:
+    if name in table and not _same(table[name][0], entry):
+        raise PluginError(f"{what} name {name!r} is registered by both plugin {table[name][1]!r} and {plugin!r}")
+    table[name] = (entry, plugin)
+
+
+def _add_preset(registry: Registry, plugin: str, name: str, combinations: Any, description: str = "") -> None:
     if name in registry.presets:
         raise PluginError(f"preset {name!r} is registered by both {registry.presets[name].plugin!r} and {plugin!r}")
     registry.presets[name] = Preset(name, tuple(dict(c) for c in combinations), description, plugin)
@@ -193,7 +254,7 @@ def build_registry(extra_plugins: tuple[object, ...] = (), strict: bool = False)
     for info in sorted(infos, key=lambda i: i.distribution != BUILTIN_DISTRIBUTION):
         if not info.failed:
             try:
-                _register(registry, pm, info.name)
+                _register(registry, pm, info.name, strict)
             except (Exception, SystemExit) as exc:
                 if strict:
                     raise
@@ -204,22 +265,26 @@ def build_registry(extra_plugins: tuple[object, ...] = (), strict: bool = False)
     return registry
 
 
-def _register(registry: Registry, pm: pluggy.PluginManager, plugin: str) -> None:
-    """Add everything one plugin registers, or (when any of it is refused) nothing at all."""
+def _register(registry: Registry, pm: pluggy.PluginManager, plugin: str, strict: bool = False) -> None:
+    """Add everything one plugin registers, or (when any of it is refused) nothing at all; `strict` imports what
+    was registered by path, so a wrong path fails here."""
     trial = Registry(
         {kind: dict(table) for kind, table in registry.components.items()},
         dict(registry.datasets),
         dict(registry.presets),
         list(registry.weights),
     )
-    for kind, hook in hookspecs.STAGE_HOOKS.items():
-        for (cls,) in _collect(pm, plugin, hook):
-            _add_component(trial, kind, cls, plugin)
-    for (cls,) in _collect(pm, plugin, "register_datasets"):
-        _add_dataset(trial, cls, plugin)
-    for args in _collect(pm, plugin, "register_presets"):
-        _add_preset(trial, args, plugin)
-    for (path,) in _collect(pm, plugin, "register_weights"):
+    tables = {**trial.components, "dataset": trial.datasets}
+    hooks = {**hookspecs.STAGE_HOOKS, "dataset": "register_datasets"}
+    for kind, hook in hooks.items():
+        for args, kwargs in _collect(pm, plugin, hook):
+            name, entry = _entry(kind, plugin, *args, **kwargs)
+            _add(tables[kind], kind, name, entry, plugin)
+            if strict and isinstance(entry, LazyComponent):
+                _resolved(tables[kind], name)
+    for args, kwargs in _collect(pm, plugin, "register_presets"):
+        _add_preset(trial, plugin, *args, **kwargs)
+    for (path,), _ in _collect(pm, plugin, "register_weights"):
         trial.weights.append((str(path), plugin))
     registry.components, registry.datasets, registry.presets = trial.components, trial.datasets, trial.presets
     registry.weights = trial.weights

@@ -7,9 +7,12 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
+
+if TYPE_CHECKING:  # descriptors are tensors, but a run of the classic stages never needs torch itself
+    import torch
 
 
 @dataclass(frozen=True)

@@ -2,15 +2,25 @@
 
 from __future__ import annotations
 
+import functools
+from typing import Any
+
 from ..components import Component
 from ..hookspecs import STAGE_HOOKS
+from ..plugins import LazyComponent
 
 
 def registered_components(plugin: object) -> list[type[Component]]:
-    """Every class the plugin's stage hooks register, in hook order, so a test can run the kit on each."""
+    """Every class the plugin's stage hooks register, in hook order (those registered by import path imported), so a
+    test can run the kit on each."""
+    owner = getattr(plugin, "__name__", type(plugin).__name__)
     found: list[type[Component]] = []
-    for hook in STAGE_HOOKS.values():
+    for kind, hook in STAGE_HOOKS.items():
         impl = getattr(plugin, hook, None)
         if callable(impl):
-            impl(register=found.append)
+            impl(register=functools.partial(_add, found, kind, owner))
     return found
+
+
+def _add(found: list[type[Component]], kind: str, owner: str, target: Any, name: str = "") -> None:
+    found.append(LazyComponent(target, kind, name, owner).resolve() if isinstance(target, str) else target)

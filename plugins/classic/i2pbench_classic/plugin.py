@@ -1,38 +1,41 @@
-"""Entry point of the classic plugins: edge extractors, cosine and oracle matchers, PnP solvers, and their preset."""
+"""Entry point of the classic plugins: edge extractors, cosine and oracle matchers, PnP solvers, and their preset.
+
+Components are registered by import path, so listing plugins imports none of OpenCV, PoseLib or torch (the cosine
+matcher's), and a run imports only the modules of the stages it uses.
+"""
 
 from __future__ import annotations
 
 from i2pbench.api import hookimpl
 from i2pbench.hookspecs import Register
 
-from .extract2d import CannyExtractor, LSDExtractor, RandomExtractor2D, SobelExtractor
-from .extract3d import DepthExtractor, DepthReflectanceExtractor, RandomExtractor3D, ReflectanceExtractor
-from .matchers import CosineMatcher, OracleMatcher
-from .solvers import EPnPRansacSolver, PoseLibSolver
-
 
 @hookimpl
 def register_extractors_2d(register: Register) -> None:
-    for cls in (LSDExtractor, CannyExtractor, SobelExtractor, RandomExtractor2D):
-        register(cls)
+    register("i2pbench_classic.extract2d:LSDExtractor", name="lsd")
+    register("i2pbench_classic.extract2d:CannyExtractor", name="canny")
+    register("i2pbench_classic.extract2d:SobelExtractor", name="sobel")
+    register("i2pbench_classic.extract2d:RandomExtractor2D", name="random")
 
 
 @hookimpl
 def register_extractors_3d(register: Register) -> None:
-    for cls in (DepthExtractor, ReflectanceExtractor, DepthReflectanceExtractor, RandomExtractor3D):
-        register(cls)
+    register("i2pbench_classic.extract3d:DepthExtractor", name="depth")
+    register("i2pbench_classic.extract3d:ReflectanceExtractor", name="reflectance")
+    register("i2pbench_classic.extract3d:DepthReflectanceExtractor", name="depth+reflectance")
+    register("i2pbench_classic.extract3d:RandomExtractor3D", name="random")
 
 
 @hookimpl
 def register_matchers(register: Register) -> None:
-    register(CosineMatcher)
-    register(OracleMatcher)
+    register("i2pbench_classic.matchers:CosineMatcher", name="cosine")
+    register("i2pbench_classic.matchers:OracleMatcher", name="oracle")
 
 
 @hookimpl
 def register_pose_solvers(register: Register) -> None:
-    register(EPnPRansacSolver)
-    register(PoseLibSolver)
+    register("i2pbench_classic.solvers:EPnPRansacSolver", name="epnp-ransac")
+    register("i2pbench_classic.solvers:PoseLibSolver", name="poselib")
 
 
 @hookimpl

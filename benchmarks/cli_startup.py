@@ -1,0 +1,125 @@
+"""Start-up of the command line: wall time of `i2pbench --help`, `i2pbench plugins` and a classic KITTI run (LSD,
+depth+reflectance, oracle matches, EPnP-RANSAC on the 6 real frames), each the median of `--repeat` runs and a ratio
+to `python -c pass` timed in the same run, so the numbers survive a busy machine. Also shown per command: the seconds
+from `main` returning to the process ending (threads joined, atexit, teardown) and which heavy modules it imported.
+
+`--baseline REV` also times a git revision's code (extracted with `git archive` into a temporary folder and put first
+on PYTHONPATH, same interpreter and installed packages), interleaved run by run with the working tree's.
+
+    .venv/bin/python benchmarks/cli_startup.py [--repeat 5] [--baseline HEAD~1] [--data-root DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+HEAVY = ("torch", "scipy", "pandas", "pyarrow", "cv2", "poselib", "ray", "numpy")
+# the console script's own code, plus a probe: the time `main` returned, and (last atexit handler) the modules loaded
+LAUNCH = """
+import atexit, sys, time
+from i2pbench.cli import main
+atexit.register(lambda: sys.stderr.write(f"\\nPROBE {done} {' '.join(sorted(sys.modules))}\\n"))
+sys.argv[0] = "i2pbench"
+try:
+    code = main()
+finally:
+    done = time.time()
+sys.exit(code)
+"""
+
+
+@dataclass
+class Timing:
+    walls: list[float] = field(default_factory=list)
+    exits: list[float] = field(default_factory=list)
+    modules: set[str] = field(default_factory=set)
+
+
+def commands(data_root: str, runs_dir: str) -> dict[str, list[str]]:
+    run = ["run", "--matcher", "oracle", "--dataset", "kitti", "--split", "all", "--data-root", data_root]
+    return {
+        "i2pbench --help": ["--help"],
+        "i2pbench plugins": ["plugins"],
+        "classic oracle run": [*run, "--runs-dir", runs_dir, "--overwrite", "--quiet"],
+    }
+
+
+def time_once(argv: list[str], env: dict[str, str], cwd: Path, timing: Timing) -> None:
+    """One run from `cwd` (not the repository: `python -c` imports from the current folder first)."""
+    start = time.time()
+    out = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=cwd)
+    end = time.time()
+    if out.returncode != 0:
+        raise SystemExit(f"{' '.join(argv[3:])} failed ({out.returncode}):\n{out.stderr[-2000:]}")
+    timing.walls.append(end - start)
+    probe = [line for line in out.stderr.splitlines() if line.startswith("PROBE ")]
+    if probe:
+        done, *modules = probe[-1].split()[1:]
+        timing.exits.append(end - float(done))
+        timing.modules = set(modules) & set(HEAVY)
+
+
+def tree_env(tree: Path | None) -> dict[str, str]:
+    """The environment that runs `tree`'s code (None: the installed working tree)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("I2PBENCH_")}
+    if tree is not None:
+        paths = [tree, tree / "plugins" / "classic", tree / "plugins" / "edgeregnet"]
+        env["PYTHONPATH"] = os.pathsep.join(map(str, paths))
+    return env
+
+
+def extract(rev: str, into: Path) -> Path:
+    into.mkdir()
+    archive = subprocess.run(["git", "archive", rev], cwd=ROOT, capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
+    return into
+
+
+def measure(trees: dict[str, Path | None], repeat: int, data_root: str, scratch: Path) -> dict[tuple, Timing]:
+    results: dict[tuple, Timing] = {("python -c pass", "-"): Timing()}
+    for _ in range(repeat):
+        time_once([sys.executable, "-c", "pass"], tree_env(None), scratch, results["python -c pass", "-"])
+        for tree, path in trees.items():
+            for label, args in commands(data_root, str(scratch / f"runs-{tree}")).items():
+                timing = results.setdefault((label, tree), Timing())
+                time_once([sys.executable, "-c", LAUNCH, *args], tree_env(path), scratch, timing)
+    return results
+
+
+def report(results: dict[tuple, Timing]) -> None:
+    python = statistics.median(results["python -c pass", "-"].walls)
+    print(f"{'command':22s} {'code':9s} {'median s':>9s} {'x python':>9s} {'exit s':>7s}  heavy modules imported")
+    for (label, tree), t in results.items():
+        wall = statistics.median(t.walls)
+        exit_s = f"{statistics.median(t.exits):7.2f}" if t.exits else f"{'-':>7s}"
+        heavy = ", ".join(m for m in HEAVY if m in t.modules) or "-"
+        print(f"{label:22s} {tree:9s} {wall:9.2f} {wall / python:9.1f} {exit_s}  {heavy if t.exits else ''}")
+    runs = len(results["python -c pass", "-"].walls)
+    print(f"\nmedian of {runs} runs each, interleaved; python -c pass = {python:.3f} s")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--baseline", help="a git revision to time too (e.g. the commit before a change)")
+    parser.add_argument("--data-root", default=str(ROOT.parent / "shared" / "data" / "kitti_odometry"))
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        trees: dict[str, Path | None] = {}
+        if args.baseline:
+            trees[args.baseline] = extract(args.baseline, Path(tmp) / "baseline")
+        trees["current"] = None
+        report(measure(trees, args.repeat, args.data_root, Path(tmp)))
+
+
+if __name__ == "__main__":
+    main()

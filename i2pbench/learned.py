@@ -1,0 +1,26 @@
+"""The base of stages with parameters. It subclasses torch.nn.Module, so it is kept out of i2pbench.components:
+importing the stage bases (to list plugins, or to run the classic stages) must not import torch."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import torch
+
+from .components import Component
+
+
+class LearnedComponent(Component, torch.nn.Module):
+    """A component with parameters; its weights live in a checkpoint shared by the pipeline's learned stages."""
+
+    learned = True
+    # config keys that only steer inference (score thresholds, filters): a checkpoint fits whatever their values, so
+    # `--conf matcher.filter_threshold=0.2` can sweep them over shipped weights
+    runtime_keys: ClassVar[frozenset[str]] = frozenset()
+
+    def __init__(self, conf: Mapping[str, Any] | None = None) -> None:
+        torch.nn.Module.__init__(self)
+        Component.__init__(self, conf)
+
+    __repr__ = Component.__repr__
