@@ -1,0 +1,184 @@
+"""How close EdgeRegNet's learned stages come to what this machine can do, measured in one process.
+
+First the machine: fp32 rates of a 2048^3 matmul, of SDPA on [1, 4, 3000, 64] and of a full-resolution 3x3 64->64
+conv. Then a preset's pipeline, built through the registry (`--preset default`: the CPU size; `edgeregnet-full`: the
+paper's), on a KITTI-sized synthetic frame (benchmarks/edgeregnet_latency.py's) with the preset's keypoint count:
+each learned stage's FLOPs, counted by torch's FlopCounterMode, and its median time after a warm-up. The roofline
+of a stage is the time its FLOPs would take at the measured rate of their kernel kind (conv, attention, matmul);
+achieved/roofline is that time over the measured one. Uncounted work (elementwise ops, softmax, gathers, the
+farthest point sampling loop) shows as a lower ratio, not as FLOPs. See docs/performance.md.
+
+    .venv/bin/python benchmarks/roofline.py [--preset default|edgeregnet-full] [--device cpu|cuda] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from edgeregnet_latency import kitti_sized_frame  # this folder is on sys.path when the script runs
+from torch.utils.flop_counter import FlopCounterMode
+
+from i2pbench.api import Features
+from i2pbench.grid import base_combinations, expand
+from i2pbench.pipeline import Pipeline
+from i2pbench.plugins import default_registry
+
+LEARNED = ("encoder2d", "encoder3d", "exchanger", "matcher")
+KINDS = ("conv", "attention", "matmul")  # what FLOPs are timed against; FlopCounterMode counts nothing else
+
+
+def cpu_attention_flops(query, key, value, *args, out_shape=None, **kwargs) -> int:
+    """Q K^T and P V: 4 N M d per head. torch counts the other SDPA kernels, but not this CPU one."""
+    batch, heads, n, _ = query
+    return 2 * batch * heads * n * key[-2] * (query[-1] + value[-1])
+
+
+ATTENTION_FORMULAS = {torch.ops.aten._scaled_dot_product_flash_attention_for_cpu: cpu_attention_flops}
+
+
+def kind_of(op: object) -> str:
+    name = str(op)
+    return "conv" if "conv" in name else "attention" if "scaled_dot_product" in name else "matmul"
+
+
+def median_seconds(fn: Callable[[], object], repeat: int, device: str) -> float:
+    """Median wall time of `fn` after one warm-up run, waiting for the device each time."""
+    sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+    fn()
+    sync()
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        fn()
+        sync()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def machine_rates(device: str, repeat: int) -> dict[str, float]:
+    """GFLOP/s of each kernel kind on this device, fp32."""
+    n, (h, w) = 2048, (376, 1241)
+    a, b = torch.randn(n, n, device=device), torch.randn(n, n, device=device)
+    q, k, v = (torch.randn(1, 4, 3000, 64, device=device) for _ in range(3))
+    image, weight = torch.randn(1, 64, h, w, device=device), torch.randn(64, 64, 3, 3, device=device)
+    flops = {"matmul": 2 * n**3, "attention": 4 * 4 * 3000 * 3000 * 64, "conv": 2 * 64 * 64 * 9 * h * w}
+    runs = {
+        "matmul": lambda: a @ b,
+        "attention": lambda: F.scaled_dot_product_attention(q, k, v),
+        "conv": lambda: F.conv2d(image, weight, padding=1),
+    }
+    with torch.inference_mode():
+        return {kind: flops[kind] / median_seconds(runs[kind], repeat, device) / 1e9 for kind in KINDS}
+
+
+@dataclass
+class Stage:
+    kind: str
+    flops: dict[str, int]  # by kernel kind
+    seconds: float
+
+    @property
+    def total(self) -> int:
+        return sum(self.flops.values())
+
+    def roofline_seconds(self, rates: dict[str, float]) -> float:
+        return sum(self.flops.get(kind, 0) / (rates[kind] * 1e9) for kind in KINDS)
+
+
+def build_pipeline(preset: str, device: str) -> Pipeline:
+    """The preset's first combination, exactly as `i2pbench run --preset PRESET` builds it (untrained weights: the
+    cost of a forward pass does not depend on them)."""
+    registry = default_registry()
+    combination = expand(base_combinations(registry, preset), {}, {}, registry)[0]
+    torch.manual_seed(0)
+    return Pipeline.build(registry, combination, timeout_s=None, isolate="thread").to(device).eval()
+
+
+def stage_calls(pipeline: Pipeline, n_keypoints: int) -> dict[str, Callable[[], object]]:
+    """Each learned stage on the KITTI-sized frame, fed its upstream stages' outputs (computed once)."""
+    frame, kp2d, kp3d = kitti_sized_frame(n_keypoints)
+    e2, e3, ex, matcher = (pipeline.stages[kind] for kind in LEARNED)
+    d2, d3 = e2(frame, kp2d), e3(frame, kp3d)
+    features = ex(frame, kp2d, kp3d, Features(d2, d3))
+    return {
+        "encoder2d": lambda: e2(frame, kp2d),
+        "encoder3d": lambda: e3(frame, kp3d),
+        "exchanger": lambda: ex(frame, kp2d, kp3d, Features(d2, d3)),
+        "matcher": lambda: matcher(frame, kp2d, kp3d, features),
+    }
+
+
+def count_flops(call: Callable[[], object], formulas: dict | None = ATTENTION_FORMULAS) -> dict[str, int]:
+    with FlopCounterMode(display=False, custom_mapping=formulas) as counter:
+        call()
+    flops: dict[str, int] = {}
+    for op, count in counter.get_flop_counts().get("Global", {}).items():
+        flops[kind_of(op)] = flops.get(kind_of(op), 0) + count
+    return flops
+
+
+def measure_stages(pipeline: Pipeline, n_keypoints: int, repeat: int, device: str) -> tuple[list[Stage], int]:
+    """Each learned stage's FLOPs and median time, and the FLOPs torch counts on its own (no attention formula)."""
+    with torch.inference_mode():
+        calls = stage_calls(pipeline, n_keypoints)
+        stages = [Stage(k, count_flops(c), median_seconds(c, repeat, device)) for k, c in calls.items()]
+        uncounted = sum(sum(count_flops(c, formulas=None).values()) for c in calls.values())
+    return stages, uncounted
+
+
+def print_rates(before: dict[str, float], after: dict[str, float]) -> dict[str, float]:
+    """Print the rates measured before and after the stages (their drift is the machine's load changing) and return
+    their mean, the rates the stages are compared with."""
+    rates = {kind: (before[kind] + after[kind]) / 2 for kind in KINDS}
+    print("\nmachine (fp32 GFLOP/s, median after warm-up; before and after the stages, their mean):")
+    shapes = {"matmul": "2048^3", "attention": "SDPA [1, 4, 3000, 64]", "conv": "3x3 64->64 on 376 x 1241"}
+    for kind in reversed(KINDS):
+        ratio = rates[kind] / rates["matmul"]
+        print(
+            f"  {kind:9s} {shapes[kind]:26s} {before[kind]:7.1f} {after[kind]:7.1f} {rates[kind]:7.1f}"
+            f"  x{ratio:.2f} of matmul"
+        )
+    return rates
+
+
+def print_stages(stages: list[Stage], rates: dict[str, float]) -> None:
+    head = f"{'stage':10s} {'GFLOP':>8s} {'conv/attn/mm %':>15s} {'ms':>9s} {'GFLOP/s':>8s} {'x matmul':>9s}"
+    print(f"\n{head} {'x roofline':>10s}")
+    flops = {kind: sum(s.flops.get(kind, 0) for s in stages) for kind in KINDS}
+    for stage in [*stages, Stage("per frame", flops, sum(s.seconds for s in stages))]:
+        gflops, rate = stage.total / 1e9, stage.total / stage.seconds / 1e9
+        mix = "/".join(f"{100 * stage.flops.get(k, 0) / max(stage.total, 1):.0f}" for k in KINDS)
+        roof = stage.roofline_seconds(rates) / stage.seconds
+        print(
+            f"{stage.kind:10s} {gflops:8.1f} {mix:>15s} {1e3 * stage.seconds:9.1f} {rate:8.1f} "
+            f"{rate / rates['matmul']:9.2f} {roof:10.2f}"
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--preset", default="default", help="a registered preset: default (CPU size), edgeregnet-full")
+    parser.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=torch.get_num_threads())
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    print(f"torch {torch.__version__}, {args.device}, {args.threads} threads, median of {args.repeat}")
+    before = machine_rates(args.device, args.repeat)
+    pipeline = build_pipeline(args.preset, args.device)
+    n_keypoints = pipeline.stages["extractor2d"].conf["max_keypoints"]
+    print(f"preset {args.preset}: {pipeline.combination.label}, {n_keypoints} + {n_keypoints} keypoints")
+    stages, uncounted = measure_stages(pipeline, n_keypoints, args.repeat, args.device)
+    print_stages(stages, print_rates(before, machine_rates(args.device, args.repeat)))
+    total = sum(s.total for s in stages)
+    print(f"\nFlopCounterMode without the CPU attention formula: {uncounted / 1e9:.1f} of {total / 1e9:.1f} GFLOP")
+
+
+if __name__ == "__main__":
+    main()
