@@ -61,6 +61,7 @@ class TrainConfig:
     amp: str = "off"  # "bf16": autocast the learned stages in bfloat16 (losses stay fp32)
     cache_dir: str | None = None  # on-disk cache of extractor outputs and grouping per frame (None: in memory)
     epochs: bool = False  # samples pass through the split in seeded permutations (else a random frame each)
+    augment: str = "none"  # "photometric": per-sample exposure, contrast, noise and blur of the image (augment.py)
 
 
 def pick_device(choice: str) -> torch.device:

@@ -7,6 +7,7 @@ stage's `prepare`) runs inside `__getitem__`, i.e. in DataLoader workers, never 
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -18,6 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from .augment import augmenter
 from .batching import LEARNED_KINDS, collate, length_mask, prepare_stage
 from .components import Component
 from .data.base import Dataset
@@ -84,11 +86,12 @@ class TrainingSamples(torch.utils.data.Dataset):
         cache_root: str | Path | None = None,
         stage_cache: bool = True,
         epochs: bool = False,
+        augment: str = "none",
     ) -> None:
         """`stage_cache` False recomputes the stages' transform-free inputs (grouping) every time: the old loop.
         `epochs`: samples go through the split in passes, each a permutation seeded by (seed, epoch), instead of
-        drawing a frame at random for every sample."""
-        self.stage_cache, self.epochs = stage_cache, epochs
+        drawing a frame at random for every sample. `augment`: see augment.py, drawn per sample index."""
+        self.stage_cache, self.epochs, self.augment = stage_cache, epochs, augmenter(augment)
         self.stages = {k: stages[k] for k in (*EXTRACTOR_KINDS, *LEARNED_KINDS) if k in stages}
         self.dataset, self.seed = dataset, seed
         self.frame_ids = dataset.frame_ids()
@@ -129,6 +132,9 @@ class TrainingSamples(torch.utils.data.Dataset):
         try:
             frame = self.frame(index)
             kp2d, kp3d = self.keypoints(frame)
+            if self.augment is not None:  # after extraction: the edges stay where the clean image has them
+                rng = np.random.default_rng([self.seed, index, 7])
+                frame = dataclasses.replace(frame, image=self.augment(frame.image, rng))
             inputs = {kind: self._prepare(kind, frame, kp2d, kp3d) for kind in self.stage_caches}
         except Exception as exc:  # noqa: BLE001 - one broken frame must not stop a training run
             return {"index": index, "error": f"{type(exc).__name__}: {exc}"[:300]}

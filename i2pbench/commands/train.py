@@ -36,6 +36,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--warmup-steps", type=non_negative_int, default=0, help="linear learning-rate warm-up")
     p.add_argument("--schedule", choices=("constant", "cosine"), default="constant", help="after the warm-up")
     p.add_argument("--grad-clip", type=float, default=1.0, help="gradient-norm clip")
+    p.add_argument("--augment", choices=("none", "photometric"), default="none", help="per-sample image augmentation")
     p.add_argument("--amp", choices=("off", "bf16"), default="off", help="bf16 autocast of the learned stages")
     p.add_argument("--cache-dir", default="runs/cache/train", help="per-frame extractor/grouping cache ('none': off)")
     p.add_argument("--log", help="JSON-lines log, one record per step (default: <out>.log.jsonl)")
@@ -105,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
         amp=args.amp,
         cache_dir=None if args.cache_dir == "none" else args.cache_dir,
         epochs=args.epochs is not None,
+        augment=args.augment,
     )
     if args.epochs is not None:
         world = int(os.environ.get("WORLD_SIZE", 1))

@@ -1,0 +1,57 @@
+"""Photometric training augmentation: exact on hand-set parameters, seeded per sample, images only."""
+
+import numpy as np
+import pytest
+import toy_plugin
+
+from i2pbench.augment import Photometric, augmenter
+from i2pbench.pipeline import Combination, Pipeline
+from i2pbench.plugins import build_registry
+from i2pbench.training_data import TrainingSamples
+
+
+def test_a_pure_brightness_shift_adds_grey_levels_and_clips():
+    image = np.array([[[0, 100, 250]]], np.uint8)
+    shift = Photometric(gamma=(1, 1), contrast=(1, 1), brightness=(10, 10), noise_std=(0, 0), blur_probability=0)
+    assert shift(image, np.random.default_rng(0)).tolist() == [[[10, 110, 255]]]
+
+
+def test_contrast_scales_about_the_mean():
+    image = np.array([[[100, 100, 100], [200, 200, 200]]], np.uint8)  # mean 150
+    stretch = Photometric(gamma=(1, 1), contrast=(2, 2), brightness=(0, 0), noise_std=(0, 0), blur_probability=0)
+    assert stretch(image, np.random.default_rng(0)).tolist() == [[[50, 50, 50], [250, 250, 250]]]
+
+
+def test_training_samples_augment_the_image_only_and_per_sample_seed(monkeypatch):
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    registry = build_registry((toy_plugin,))
+    names = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
+    stages = Pipeline.build(registry, Combination(names)).stages
+    seen = []
+    monkeypatch.setattr(TrainingSamples, "_prepare", lambda self, kind, frame, kp2d, kp3d: seen.append(frame) or {})
+
+    class Grey(toy_plugin.ToyDataset):
+        def frame_ids(self):
+            return ["a"]
+
+        def load(self, frame_id):
+            frame = super().load(frame_id)
+            return type(frame)(**{**frame.__dict__, "image": np.full((8, 8, 3), 128, np.uint8)})
+
+    plain = TrainingSamples({**stages, "matcher": _Prepared()}, Grey("test"), seed=0)
+    augmented = TrainingSamples({**stages, "matcher": _Prepared()}, Grey("test"), seed=0, augment="photometric")
+    for samples in (plain, augmented, augmented):
+        samples[3]
+    clean, first, again = seen
+    assert (clean.image == 128).all() and not (first.image == 128).all()
+    np.testing.assert_array_equal(first.image, again.image)  # a function of (seed, sample index)
+    np.testing.assert_array_equal(first.points, clean.points)
+    np.testing.assert_array_equal(first.T_gt, clean.T_gt)
+    with pytest.raises(ValueError, match="choose one of none, photometric"):
+        augmenter("fog")
+
+
+class _Prepared:
+    """a stand-in learned stage: only its presence matters, `_prepare` is patched."""
+
+    name, conf = "stand-in", {}
