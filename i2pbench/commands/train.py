@@ -8,7 +8,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from .run import STAGE_OPTIONS
+from .run import STAGE_OPTIONS, parse_data_conf, yaml_setting
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -21,6 +21,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--split", default="train")
     p.add_argument("--val-split", default="val", help="split for the periodic validation ('none' to skip)")
     p.add_argument("--data-root", help="dataset root directory (else I2PBENCH_<NAME>_ROOT)")
+    p.add_argument(
+        "--data-conf",
+        action="append",
+        default=[],
+        type=yaml_setting,
+        metavar="KEY=VALUE",
+        help="dataset config for the train and val splits (e.g. frames.train=20000)",
+    )
     p.add_argument("--out", required=True, help="checkpoint path; training resumes from it when it exists")
     p.add_argument("--steps", type=positive_int, default=20000, help="optimiser steps")
     p.add_argument(
@@ -86,7 +94,9 @@ def run(args: argparse.Namespace) -> int:
     registry = default_registry()
     torch.manual_seed(args.seed)  # initial weights: two runs with one seed start (and end) alike
     pipeline = Pipeline.build(registry, _combination(registry, args))
-    data_conf = {"root": args.data_root} if args.data_root else {}
+    data_conf = parse_data_conf(args.data_conf)
+    if args.data_root:
+        data_conf["root"] = args.data_root
     train_set = registry.dataset(args.dataset)(args.split, data_conf)
     val_set = None if args.val_split == "none" else registry.dataset(args.dataset)(args.val_split, data_conf)
     config = TrainConfig(
