@@ -156,7 +156,8 @@ class Trainer:
         pipeline.to(self.device)
         self.model = TrainModel(pipeline)
         self.params = [p for m in pipeline.learned_modules().values() for p in m.parameters()]
-        self.optimizer = torch.optim.Adam(self.params, lr=config.lr)
+        # fused on CUDA: one kernel for all parameters, and no per-parameter step counter read back by the host
+        self.optimizer = torch.optim.Adam(self.params, lr=config.lr, fused=self.device.type == "cuda")
         self.samples = TrainingSamples(pipeline.stages, train_set, config.seed, config.cache_dir, epochs=config.epochs)
         self.step, self.seconds, self.validation = 0, 0.0, {}
         self.best: float | None = None
