@@ -158,7 +158,9 @@ class Trainer:
         self.params = [p for m in pipeline.learned_modules().values() for p in m.parameters()]
         # fused on CUDA: one kernel for all parameters, and no per-parameter step counter read back by the host
         self.optimizer = torch.optim.Adam(self.params, lr=config.lr, fused=self.device.type == "cuda")
-        self.samples = TrainingSamples(pipeline.stages, train_set, config.seed, config.cache_dir, epochs=config.epochs)
+        self.samples = TrainingSamples(
+            pipeline.stages, train_set, config.seed, config.cache_dir, epochs=config.epochs, augment=config.augment
+        )
         self.step, self.seconds, self.validation = 0, 0.0, {}
         self.best: float | None = None
         self.lineage: list[dict[str, Any]] = []  # earlier phases on other data (see Checkpoint.lineage)

@@ -55,3 +55,12 @@ class _Prepared:
     """a stand-in learned stage: only its presence matters, `_prepare` is patched."""
 
     name, conf = "stand-in", {}
+
+
+def test_the_trainer_hands_its_augmentation_to_its_samples(monkeypatch, tmp_path):
+    """the option reaches the data (it once stopped at the config, and a run 'with' augmentation had none)."""
+    import test_weights_and_training as toy
+
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    trainers = [toy.varied_trainer(tmp_path / f"{a}.pt", augment=a) for a in ("none", "photometric")]
+    assert trainers[0].samples.augment is None and isinstance(trainers[1].samples.augment, Photometric)
