@@ -24,6 +24,7 @@ from .components import (
     Matcher,
     PoseSolver,
 )
+from .corruptions import Corruption
 from .data.base import Dataset
 from .errors import DataError, StageError
 from .plugins import hookimpl
@@ -42,6 +43,7 @@ __all__ = [
     "MATCHES",
     "POINTS",
     "Component",
+    "Corruption",
     "DataError",
     "Dataset",
     "Encoder2D",

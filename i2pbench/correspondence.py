@@ -2,7 +2,8 @@
 
 Used by the oracle matcher, the edge-quality diagnostics, training losses and the inlier ratio of a run's matches,
 so all of them agree on what a true match is: a 3D keypoint whose projection lies within eps_c pixels of a 2D
-keypoint.
+keypoint. The projection uses the camera that formed the image (`Frame.K_true`), not a corrupted calibration the
+stages may be given.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ def ground_truth_matches(
     if frame.T_gt is None:
         raise ValueError("ground_truth_matches needs a frame with T_gt")
     radius = frame.match_radius_px if radius_px is None else radius_px
-    uv, front = project(frame.K, frame.T_gt, kp3d.xyz.astype(np.float64))
+    uv, front = project(frame.K_true, frame.T_gt, kp3d.xyz.astype(np.float64))
     in_fov = in_image(uv, front, frame.image_size)
     candidates = np.flatnonzero(in_fov)
     if len(kp2d) == 0 or candidates.size == 0:
@@ -57,6 +58,6 @@ def true_match_mask(frame: Frame, uv: np.ndarray, xyz: np.ndarray, radius_px: fl
     if frame.T_gt is None:
         raise ValueError("true_match_mask needs a frame with T_gt")
     radius = frame.match_radius_px if radius_px is None else radius_px
-    projected, front = project(frame.K, frame.T_gt, np.asarray(xyz, np.float64).reshape(-1, 3))
+    projected, front = project(frame.K_true, frame.T_gt, np.asarray(xyz, np.float64).reshape(-1, 3))
     distance = np.linalg.norm(projected - np.asarray(uv, np.float64).reshape(-1, 2), axis=1)
     return front & (distance < radius)

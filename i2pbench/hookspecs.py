@@ -73,6 +73,12 @@ def register_weights(register: Register) -> None:
     recorded combination uses it when the user asks for `--weights auto` (the default)."""
 
 
+@hookspec
+def register_corruptions(register: Register) -> None:
+    """Register `i2pbench.api.Corruption` subclasses (sensor or calibration faults run with `--corruption NAME`):
+    `register(cls)` or by path. A corruption changes what the stages see, never the ground truth."""
+
+
 HOOK_NAMES: tuple[str, ...] = (
     "register_datasets",
     "register_extractors_2d",
@@ -84,6 +90,7 @@ HOOK_NAMES: tuple[str, ...] = (
     "register_pose_solvers",
     "register_presets",
     "register_weights",
+    "register_corruptions",
 )
 
 # The hook that registers each stage kind.

@@ -3,6 +3,10 @@
 Column names carry an arrow saying which direction is better (lm-eval's make_table). Latency columns are per frame,
 in milliseconds, timed around each stage only (data loading, scoring and storing are outside), over the frames
 whose pipeline ran to the end: a frame that crashed early would otherwise look fast.
+
+Rows of a corrupted protocol carry its `corruption` and `severity` (both empty for clean rows); `robustness` turns
+such a board into the summary per corruption: Acc. at each severity and their mean, and per row the mean over every
+corruption and severity (mean corruption Acc., as ImageNet-C and KITTI-C average their grids).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from .metrics import success, summarize
 from .protocol import Protocol
 
 GROUP = ["dataset", "split", "combination", "weights"]
+CONDITION = ["corruption", "severity"]  # a row's protocol corruption; "" for clean rows
 ACC, RTE, RRE = "Acc. (%) ↑", "RTE (m) ↓", "RRE (°) ↓"
 RTE_MEAN, RRE_MEAN = "rte_mean", "rre_mean"
 MODEL_SIZE = "model size (MB) ↓"
@@ -105,14 +110,30 @@ def _row(records: pd.DataFrame, protocol: Protocol) -> dict:
 
 
 def build(records: pd.DataFrame, protocol: Protocol | None = None) -> pd.DataFrame:
-    """Aggregate per-frame records into the leaderboard, best Acc. first."""
+    """Aggregate per-frame records into the leaderboard: clean rows first, then each corruption (in run order) by
+    severity, and within each of those best Acc. first."""
     protocol = protocol or Protocol()
+    records = _with_condition(records)
     rows = [
-        {**dict(zip(GROUP, key, strict=True)), **_row(group, protocol)}
-        for key, group in records.groupby(GROUP, sort=False, dropna=False)
+        {**dict(zip(GROUP + CONDITION, key, strict=True)), **_row(group, protocol)}
+        for key, group in records.groupby(GROUP + CONDITION, sort=False, dropna=False)
     ]
     board = pd.DataFrame(rows)
-    return board.sort_values([ACC, RRE_MEAN], ascending=[False, True], kind="stable").reset_index(drop=True)
+    board = board.sort_values([ACC, RRE_MEAN], ascending=[False, True], kind="stable")
+    order = {name: i for i, name in enumerate(pd.unique(records["corruption"]), start=1)}
+    rank = board["corruption"].map(lambda c: 0 if c == "" else order[c]) * 100 + board["severity"]
+    board = board.iloc[np.argsort(rank.to_numpy(), kind="stable")].reset_index(drop=True)
+    board["severity"] = [str(int(v)) if c else "" for c, v in zip(board["corruption"], board["severity"], strict=True)]
+    return board[[*GROUP, *CONDITION, *(c for c in board.columns if c not in GROUP + CONDITION)]]
+
+
+def _with_condition(records: pd.DataFrame) -> pd.DataFrame:
+    """Records written before corruptions existed are clean."""
+    if "corruption" not in records:
+        records = records.assign(corruption="")
+    if "severity" not in records:
+        records = records.assign(severity=0)
+    return records.assign(corruption=records["corruption"].fillna(""), severity=records["severity"].fillna(0))
 
 
 def latency_columns(board: pd.DataFrame) -> list[str]:
@@ -124,6 +145,8 @@ DISPLAY = [
     "dataset",
     "split",
     "combination",
+    "corruption",
+    "severity",
     "weights",
     "weights_trained_on",
     "frames",
@@ -177,3 +200,57 @@ def read(path: str | Path) -> pd.DataFrame:
     if path.suffix == ".parquet":
         return pd.read_parquet(path)
     return pd.read_csv(path, keep_default_na=False, na_values=["nan"])
+
+
+CLEAN_ACC, MEAN_ACC, RETAINED = "clean Acc. (%) ↑", "mean Acc. (%) ↑", "retained (%) ↑"
+MEAN_ROW = "mean corruption Acc."  # the summary row averaging every corruption and severity
+
+
+def severity_column(severity: int) -> str:
+    return f"severity {severity} Acc. (%) ↑"
+
+
+def robustness(board: pd.DataFrame, kinds: dict[str, str] | None = None) -> pd.DataFrame:
+    """Per row (combination, weights, dataset split) and corruption: Acc. at each severity, their mean and the clean
+    Acc.; then a `MEAN_ROW` whose severity columns average the corruptions and whose mean is the mean corruption Acc.
+    over every corruption and severity run. `retained` is mean / clean. `kinds` maps corruptions to their kind."""
+    corrupted = board[board["corruption"] != ""]
+    severities = sorted({int(s) for s in corrupted["severity"]})
+    rows = []
+    for key, group in corrupted.groupby(GROUP, sort=False):
+        clean = board[(board[GROUP] == pd.Series(key, index=GROUP)).all(axis=1) & (board["corruption"] == "")]
+        reference = float(clean[ACC].iloc[0]) if len(clean) else np.nan
+        cells = group.assign(severity=group["severity"].astype(int)).pivot_table(
+            index="corruption", columns="severity", values=ACC, aggfunc="first", sort=False
+        )
+        for name, accs in [*cells.iterrows(), (MEAN_ROW, cells.mean())]:
+            mean = float(np.nanmean(cells.to_numpy())) if name == MEAN_ROW else float(accs.mean())
+            rows.append({
+                **dict(zip(GROUP, key, strict=True)),
+                "corruption": name,
+                "kind": (kinds or {}).get(name, ""),
+                CLEAN_ACC: reference,
+                **{severity_column(s): float(accs.get(s, np.nan)) for s in severities},
+                MEAN_ACC: round(mean, 2),
+                RETAINED: round(100.0 * mean / reference, 2) if reference else np.nan,
+            })  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def write_robustness(summary: pd.DataFrame, stem: str | Path) -> list[Path]:
+    """Write `<stem>.csv` and `<stem>.md` (every column), atomically as `write` does."""
+    stem = Path(stem)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    columns = [c for c in summary.columns if not (c == "kind" and (summary[c] == "").all())]
+    writers = {
+        "csv": lambda p: summary.to_csv(p, index=False, na_rep="nan"),
+        "md": lambda p: p.write_text(to_markdown(summary, columns) + "\n"),
+    }
+    paths = []
+    for ext, writer in writers.items():
+        path = stem.with_name(f"{stem.name}.{ext}")
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        writer(tmp)
+        os.replace(tmp, path)
+        paths.append(path)
+    return paths

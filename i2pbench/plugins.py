@@ -31,6 +31,7 @@ import pluggy
 
 from . import hookspecs
 from .components import STAGE_BASES, Component
+from .corruptions import Corruption, check_class
 from .data.base import Dataset
 from .errors import PluginError
 
@@ -65,7 +66,7 @@ class LazyComponent:
     """A component or dataset registered by import path and name, not yet imported."""
 
     path: str  # "package.module:Class"
-    kind: str  # a stage kind, or "dataset"
+    kind: str  # a stage kind, "dataset" or "corruption"
     name: str
     plugin: str
 
@@ -95,13 +96,14 @@ Entry = tuple[Any, str]  # (class or LazyComponent, plugin)
 
 @dataclass
 class Registry:
-    """Every component, dataset, preset and shipped checkpoint the loaded plugins registered."""
+    """Every component, dataset, preset, shipped checkpoint and corruption the loaded plugins registered."""
 
     components: dict[str, dict[str, Entry]] = field(default_factory=lambda: {kind: {} for kind in STAGE_BASES})
     datasets: dict[str, Entry] = field(default_factory=dict)
     presets: dict[str, Preset] = field(default_factory=dict)
     weights: list[tuple[str, str]] = field(default_factory=list)  # (path, plugin)
     plugins: list[PluginInfo] = field(default_factory=list)
+    corruptions: dict[str, Entry] = field(default_factory=dict)
 
     def component(self, kind: str, name: str) -> type[Component]:
         if kind not in self.components:
@@ -110,6 +112,9 @@ class Registry:
 
     def dataset(self, name: str) -> type[Dataset]:
         return _resolved(self.datasets, _lookup(self.datasets, name, "dataset"))
+
+    def corruption(self, name: str) -> type[Corruption]:
+        return _resolved(self.corruptions, _lookup(self.corruptions, name, "corruption"))
 
     def preset(self, name: str) -> Preset:
         return self.presets[_lookup(self.presets, name, "preset")]
@@ -201,11 +206,13 @@ def _collect(pm: pluggy.PluginManager, plugin: str, hook_name: str) -> list[tupl
 
 
 def _check_class(cls: Any, kind: str, plugin: str) -> None:
-    base = Dataset if kind == "dataset" else STAGE_BASES[kind]
+    base = {"dataset": Dataset, "corruption": Corruption}.get(kind) or STAGE_BASES[kind]
     if not (isinstance(cls, type) and issubclass(cls, base)):
         raise PluginError(f"plugin {plugin!r} registered {cls!r} as a {kind}, but it does not subclass {base.__name__}")
     if not cls.name:
         raise PluginError(f"plugin {plugin!r} registered {cls.__name__} without a `name`")
+    if kind == "corruption":
+        check_class(cls, plugin)
 
 
 def _entry(kind: str, plugin: str, target: Any, name: str | None = None) -> tuple[str, Any]:
@@ -273,9 +280,10 @@ def _register(registry: Registry, pm: pluggy.PluginManager, plugin: str, strict:
         dict(registry.datasets),
         dict(registry.presets),
         list(registry.weights),
+        corruptions=dict(registry.corruptions),
     )
-    tables = {**trial.components, "dataset": trial.datasets}
-    hooks = {**hookspecs.STAGE_HOOKS, "dataset": "register_datasets"}
+    tables = {**trial.components, "dataset": trial.datasets, "corruption": trial.corruptions}
+    hooks = {**hookspecs.STAGE_HOOKS, "dataset": "register_datasets", "corruption": "register_corruptions"}
     for kind, hook in hooks.items():
         for args, kwargs in _collect(pm, plugin, hook):
             name, entry = _entry(kind, plugin, *args, **kwargs)
@@ -287,7 +295,7 @@ def _register(registry: Registry, pm: pluggy.PluginManager, plugin: str, strict:
     for (path,), _ in _collect(pm, plugin, "register_weights"):
         trial.weights.append((str(path), plugin))
     registry.components, registry.datasets, registry.presets = trial.components, trial.datasets, trial.presets
-    registry.weights = trial.weights
+    registry.weights, registry.corruptions = trial.weights, trial.corruptions
 
 
 @lru_cache(maxsize=1)
@@ -306,6 +314,9 @@ def components_of(registry: Registry, plugin: str) -> dict[str, list[str]]:
     datasets = sorted(n for n, (_, p) in registry.datasets.items() if p == plugin)
     if datasets:
         out["dataset"] = datasets
+    corruptions = sorted(n for n, (_, p) in registry.corruptions.items() if p == plugin)
+    if corruptions:
+        out["corruption"] = corruptions
     presets = sorted(n for n, p in registry.presets.items() if p.plugin == plugin)
     if presets:
         out["preset"] = presets

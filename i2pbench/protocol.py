@@ -4,19 +4,32 @@ The LiDAR cloud is moved by a random transform T_rand (rotation about LiDAR z un
 uniform in [-10, 10] m on x and y, 0 on z); the ground truth is T_gt = T_cam_lidar @ inv(T_rand). Each frame's
 transform comes from its own generator seeded by (seed, dataset, frame id), so it never depends on run order or on
 which other frames run.
+
+A corruption (docs/robustness.md) is part of the card too: `corrupted(corruption, severity)` names one, and `apply`
+corrupts the dataset's frame before moving it, with its own generator for (seed, dataset, frame, corruption,
+severity). The ground truth is always the dataset's: T_gt comes from the uncorrupted T_cam_lidar, and a corrupted K
+keeps the true one beside it (`Frame.K_gt`). The clean card is the card as it was before corruptions existed, so
+clean results keep their identity and cache keys.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .errors import DataError
 from .geometry import invert, make_transform, rot_z, transform_points
 from .types import Frame, SensorFrame
+
+if TYPE_CHECKING:
+    from .corruptions import Corruption
+
+CORRUPTION_FIELDS = ("corruption", "severity")
 
 
 @dataclass(frozen=True)
@@ -31,16 +44,46 @@ class Protocol:
     filter_rre_deg: float = 10.0  # mean +- std use frames with RRE < this and RTE < filter_rte_m
     filter_rte_m: float = 5.0
     rre_convention: str = "xzy-sum"  # sum of |extrinsic 'xzy' Euler angles| of inv(T_pred) @ T_gt, as the peers
+    corruption: str = ""  # a registered corruption's name; "" is the clean protocol
+    severity: int = 0  # the corruption's severity, 1..its number of levels
+    corrupter: Corruption | None = field(default=None, compare=False, repr=False)  # the component, when resolved
 
     def card(self) -> dict:
-        return asdict(self)
+        """The fields (the component itself is not one); a clean card leaves the corruption fields out."""
+        card = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "corrupter"}
+        return card if self.corruption else {k: v for k, v in card.items() if k not in CORRUPTION_FIELDS}
 
     def identity(self) -> str:
         return hashlib.sha256(json.dumps(self.card(), sort_keys=True).encode()).hexdigest()[:16]
 
-    def rng(self, dataset: str, frame_id: str) -> np.random.Generator:
-        digest = hashlib.sha256(f"{self.seed}\x00{dataset}\x00{frame_id}".encode()).digest()
+    def rng(self, dataset: str, frame_id: str, *salt: str) -> np.random.Generator:
+        """A generator of its own per (seed, dataset, frame id, salt...): the corruption's name and severity are the
+        salt of its randomness, which thus never shifts the frame's transform."""
+        digest = hashlib.sha256("\x00".join([str(self.seed), dataset, frame_id, *salt]).encode()).digest()
         return np.random.default_rng(np.frombuffer(digest, dtype=np.uint32).tolist())
+
+    def corrupted(self, corruption: Corruption, severity: int) -> Protocol:
+        """This protocol with `corruption` at `severity` (1..its number of levels)."""
+        corruption.level(severity)  # refuses a severity the corruption does not have
+        return dataclasses.replace(self, corruption=corruption.name, severity=severity, corrupter=corruption)
+
+    def component(self) -> Corruption | None:
+        """The corruption component: the resolved one, or (for a card read back) the installed one of that name."""
+        if not self.corruption:
+            return None
+        if self.corrupter is not None:
+            return self.corrupter
+        from .plugins import default_registry
+
+        return default_registry().corruption(self.corruption)()
+
+    def corrupt(self, sensor: SensorFrame) -> SensorFrame:
+        """The dataset's frame as the corrupted sensors deliver it (itself, under the clean protocol)."""
+        corruption = self.component()
+        if corruption is None:
+            return sensor
+        rng = self.rng(sensor.dataset, sensor.frame_id, self.corruption, str(self.severity))
+        return corruption.apply(sensor, self.severity, rng)
 
     def random_transform(self, dataset: str, frame_id: str) -> np.ndarray:
         """T_rand for one frame: a yaw about LiDAR z and an x/y translation."""
@@ -50,22 +93,26 @@ class Protocol:
         return make_transform(rot_z(yaw), np.array([tx, ty, 0.0]))
 
     def apply(self, sensor: SensorFrame) -> Frame:
-        """Turn a dataset frame into a registration problem with its ground truth."""
+        """Turn a dataset frame into a registration problem (corrupted, under a corruption) with its ground truth.
+
+        What the stages see comes from the corrupted frame; the ground truth only from the dataset's."""
         if not np.isfinite(sensor.points).all():
             where = sensor.source or f"{sensor.dataset} frame {sensor.frame_id}"
             raise DataError(f"{where}: the scan contains NaN or infinite values; datasets must drop such returns")
+        seen = self.corrupt(sensor)
         T_rand = self.random_transform(sensor.dataset, sensor.frame_id)
-        points = sensor.points.copy()
-        points[:, :3] = transform_points(T_rand, sensor.points[:, :3].astype(np.float64)).astype(np.float32)
+        points = seen.points.copy()
+        points[:, :3] = transform_points(T_rand, seen.points[:, :3].astype(np.float64)).astype(np.float32)
         return Frame(
             dataset=sensor.dataset,
             frame_id=sensor.frame_id,
-            image=sensor.image,
+            image=seen.image,
             points=points,
-            ring=sensor.ring,
-            ranges=np.linalg.norm(sensor.points[:, :3], axis=1).astype(np.float32),
-            K=sensor.K,
+            ring=seen.ring,
+            ranges=np.linalg.norm(seen.points[:, :3], axis=1).astype(np.float32),
+            K=seen.K,
             T_gt=sensor.T_cam_lidar @ invert(T_rand),
             match_radius_px=sensor.match_radius_px,
             T_init=sensor.T_cam_lidar,
+            K_gt=None if np.array_equal(seen.K, sensor.K) else sensor.K,
         )

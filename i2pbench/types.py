@@ -41,7 +41,9 @@ class Frame:
 
     `ranges` is the distance each return travelled from the sensor, a measurement the protocol's transform leaves
     unchanged (real LiDARs report it), so scan-line edge detectors still see the sensor's geometry.
-    `T_gt` is hidden (None) from every stage that does not declare it consumes ground truth.
+    `T_gt` is hidden (None) from every stage that does not declare it consumes ground truth. So is `K_gt`: set only
+    when `K`, what the stages are told, is a corrupted calibration (docs/robustness.md), it holds the intrinsics the
+    image was really formed with, which ground-truth projections (true matches, the oracle) use.
     """
 
     dataset: str
@@ -54,14 +56,20 @@ class Frame:
     T_gt: np.ndarray | None  # [4 x 4] float64, camera <- moved LiDAR
     match_radius_px: float = 3.0
     T_init: np.ndarray | None = None  # [4 x 4] the pose a solver would assume with no information (for overlays)
+    K_gt: np.ndarray | None = None  # [3 x 3] float64 true intrinsics when K is corrupted; None: K is the true one
 
     @property
     def image_size(self) -> tuple[int, int]:
         """(width, height) in pixels."""
         return int(self.image.shape[1]), int(self.image.shape[0])
 
+    @property
+    def K_true(self) -> np.ndarray:
+        """The intrinsics the image was formed with: what a ground-truth projection uses."""
+        return self.K if self.K_gt is None else self.K_gt
+
     def without_ground_truth(self) -> Frame:
-        return dataclasses.replace(self, T_gt=None)
+        return dataclasses.replace(self, T_gt=None, K_gt=None)
 
 
 @dataclass(frozen=True)

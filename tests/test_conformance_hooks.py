@@ -3,7 +3,7 @@
 import pytest
 import toy_plugin
 
-from i2pbench.api import Encoder3D, Exchanger, hookimpl
+from i2pbench.api import Corruption, Encoder3D, Exchanger, hookimpl
 from i2pbench.errors import PluginError
 from i2pbench.hookspecs import HOOK_NAMES, STAGE_HOOKS
 from i2pbench.plugins import build_registry, components_of
@@ -15,6 +15,10 @@ class Encoder3DStub(Encoder3D):
 
 class ExchangerStub(Exchanger):
     name = "stub-exchanger"
+
+
+class CorruptionStub(Corruption):
+    name, kind, levels = "stub-corruption", "image", (1, 2, 3)
 
 
 class EveryHook:
@@ -62,6 +66,10 @@ class EveryHook:
     def register_weights(self, register):
         register("/weights/every-hook.pt")
 
+    @hookimpl
+    def register_corruptions(self, register):
+        register(CorruptionStub)
+
 
 @pytest.fixture
 def registry(monkeypatch):
@@ -88,14 +96,16 @@ def test_each_stage_hook_registers_its_kind(registry):
         assert registry.owner(kind, name) == "every-hook"
 
 
-def test_datasets_presets_and_weights_are_registered(registry):
+def test_datasets_presets_weights_and_corruptions_are_registered(registry):
     assert registry.dataset("toy") is toy_plugin.ToyDataset
     assert registry.preset("everything").combinations == ({"extractor2d": "grid", "solver": "truth"},)
     assert registry.weights == [("/weights/every-hook.pt", "every-hook")]
+    assert registry.corruption("stub-corruption") is CorruptionStub
     listed = components_of(registry, "every-hook")
     assert (
         listed["dataset"] == ["toy"] and listed["preset"] == ["everything"] and listed["weights"] == ["every-hook.pt"]
     )
+    assert listed["corruption"] == ["stub-corruption"]
 
 
 def test_a_class_of_the_wrong_kind_is_refused_naming_the_plugin(monkeypatch):

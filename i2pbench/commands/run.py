@@ -38,6 +38,11 @@ def positive_int(value: str) -> int:
     return number
 
 
+def severity_list(value: str) -> list[int]:
+    """An argparse type: `1,3,5`, the severities a corruption given without one runs at."""
+    return [positive_int(v) for v in _split_list(value)]
+
+
 def yaml_setting(value: str) -> str:
     """An argparse type for KEY=VALUE options whose value is YAML: refuse malformed YAML while parsing options."""
     import yaml
@@ -70,6 +75,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--device", default="auto", help=DEVICE_HELP)
     p.add_argument("--seed", type=int, default=0, help="protocol seed for the random transforms")
+    p.add_argument("--corruption", type=_split_list, metavar="NAME[:SEVERITY],...", help="run under corruptions "
+                   "(docs/robustness.md), each a set of rows: NAME at every severity, NAME:S, all, clean")  # fmt: skip
+    p.add_argument("--severities", type=severity_list, metavar="S,...", help="severities for a corruption named "
+                   "without one (e.g. 1,3,5)")  # fmt: skip
+    p.add_argument("--robustness", action="store_true", help="the robustness grid: clean rows, then every corruption "
+                   "at every severity (or --severities); writes OUT-robustness.md/.csv too")  # fmt: skip
     p.add_argument("--runs-dir", default="runs", help="where per-frame results are cached")
     p.add_argument("--out", help="leaderboard file stem (default RUNS_DIR/leaderboards/<dataset>-<split>)")
     p.add_argument("--overwrite", action="store_true", help="recompute frames already in the cache")
@@ -185,18 +196,45 @@ def run(args: argparse.Namespace) -> int:
     frame_ids = dataset.frame_ids()[: args.frames]
     if not frame_ids:
         raise DataError(f"dataset {dataset.name!r} split {dataset.split!r} has no frames to run")
-    protocol = Protocol(seed=args.seed)
+    protocols = _protocols(registry, Protocol(seed=args.seed), args)
     name = f"{dataset.name}-{dataset.split}"
     store = _open_store(Path(args.runs_dir) / name)
-    invocation = Invocation(store.root, _meta(args, threads, protocol, dataset, frame_ids, combinations))
+    invocation = Invocation(store.root, _meta(args, threads, protocols, dataset, frame_ids, combinations))
     start = time.perf_counter()
-    records = _run_grid(registry, combinations, dataset, frame_ids, protocol, store, invocation.id, args)
-    board = leaderboard.build(records, protocol)
+    records = _run_grid(registry, combinations, dataset, frame_ids, protocols, store, invocation.id, args)
+    board = leaderboard.build(records, protocols[0])
     invocation.finish(**_summary(records, board, invocation.id, time.perf_counter() - start))
     print(leaderboard.to_markdown(board))  # first: a leaderboard that cannot be written is still seen
-    paths = _write_board(board, Path(args.out or Path(args.runs_dir) / "leaderboards" / name), store.root)
+    summary = _robustness(registry, board)
+    stem = Path(args.out or Path(args.runs_dir) / "leaderboards" / name)
+    paths = _write_board(board, stem, store.root, summary)
     print(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store.root}", file=sys.stderr)
     return 0
+
+
+def _protocols(registry, base, args: argparse.Namespace) -> list:
+    """The protocols to run, each a set of rows: the clean one, or those `--corruption` / `--robustness` name."""
+    from ..corruptions import ALL, CLEAN, protocols
+    from ..errors import PluginError
+
+    specs = [*([CLEAN, ALL] if args.robustness else []), *(args.corruption or [])]
+    if not specs:
+        if args.severities:
+            raise PluginError("--severities chooses the severities of --corruption NAME or --robustness; give one")
+        return [base]
+    return protocols(registry, base, specs, args.severities)
+
+
+def _robustness(registry, board):
+    """The summary per corruption when the board has corrupted rows (printed and written beside it), else None."""
+    from .. import leaderboard
+
+    if (board["corruption"] == "").all():
+        return None
+    kinds = {name: registry.corruption(name).kind for name in set(board["corruption"]) if name}
+    summary = leaderboard.robustness(board, kinds)
+    print("\n" + leaderboard.to_markdown(summary, list(summary.columns)))
+    return summary
 
 
 def _open_store(root: Path):
@@ -212,13 +250,17 @@ def _open_store(root: Path):
         ) from None
 
 
-def _write_board(board, stem: Path, store_root: Path) -> list[Path]:
-    """The leaderboard's files; an unwritable folder is an error that says nothing computed is lost."""
+def _write_board(board, stem: Path, store_root: Path, summary=None) -> list[Path]:
+    """The leaderboard's files (and the robustness summary's, `<stem>-robustness`); an unwritable folder is an error
+    that says nothing computed is lost."""
     from .. import leaderboard
     from ..errors import I2PBenchError
 
     try:
-        return leaderboard.write(board, stem)
+        paths = leaderboard.write(board, stem)
+        if summary is not None:
+            paths += leaderboard.write_robustness(summary, stem.with_name(f"{stem.name}-robustness"))
+        return paths
     except OSError as exc:
         raise I2PBenchError(
             f"could not write the leaderboard into {stem.parent} ({exc.strerror or exc}); it is printed above, and "
@@ -227,10 +269,13 @@ def _write_board(board, stem: Path, store_root: Path) -> list[Path]:
         ) from None
 
 
-def _meta(args, threads: int, protocol, dataset, frame_ids: list[str], combinations) -> dict[str, Any]:
-    """What this invocation depends on, recorded before any frame runs (a killed run keeps it too)."""
+def _meta(args, threads: int, protocols, dataset, frame_ids: list[str], combinations) -> dict[str, Any]:
+    """What this invocation depends on, recorded before any frame runs (a killed run keeps it too); `protocol` is
+    the first protocol's card, `protocols` every one's when corruptions add more."""
     from ..runs.environment import environment
 
+    protocol = protocols[0]
+    more = {"protocols": [p.card() for p in protocols]} if len(protocols) > 1 else {}
     return {
         "argv": sys.argv,
         "threads": threads,
@@ -241,6 +286,7 @@ def _meta(args, threads: int, protocol, dataset, frame_ids: list[str], combinati
         "frames": frame_ids,
         "environment": environment(),
         "combinations": [c.describe() for c in combinations],
+        **more,
     }
 
 
@@ -252,35 +298,48 @@ def _summary(records, board, invocation: str, wall_s: float) -> dict[str, Any]:
         "wall_s": wall_s,
         "computed": computed,
         "reused": len(records) - computed,
-        "rows": board[leaderboard.GROUP].to_dict("records"),
+        "rows": board[leaderboard.GROUP + leaderboard.CONDITION].to_dict("records"),
     }
 
 
-def _run_grid(registry, combinations, dataset, frame_ids, protocol, store, invocation: str, args):
-    """run_grid with a progress bar (ETA) over every frame of every combination, cached ones included."""
+def _run_grid(registry, combinations, dataset, frame_ids, protocols, store, invocation: str, args):
+    """run_grid under each protocol in turn, with one progress bar (ETA) over every frame of every combination and
+    protocol, cached ones included."""
+    import pandas as pd
     from tqdm import tqdm
 
     from ..runs import executors
-    from ..runs.runner import run_grid
 
-    total = len(frame_ids) * len(combinations)
+    total = len(frame_ids) * len(combinations) * len(protocols)
     executor = executors.make_executor(args.executor, args.workers, args.threads_per_worker, args.address, args.device)
     with tqdm(total=total, disable=args.quiet, unit="frame", file=sys.stderr, dynamic_ncols=True) as bar:
-        if executor is not None:
-            return executors.run_grid(
-                registry, combinations, dataset, protocol, store, executor, weights=args.weights, frame_ids=frame_ids,
-                overwrite=args.overwrite, progress=bar.update, invocation=invocation, chunk_size=args.chunk_size,
-            )  # fmt: skip
-        return run_grid(
-            registry,
-            combinations,
-            dataset,
-            protocol,
-            store,
-            weights=args.weights,
-            device=args.device,
-            frame_ids=frame_ids,
-            overwrite=args.overwrite,
-            progress=bar.update,
-            invocation=invocation,
-        )
+        grids = [
+            _run_protocol(registry, combinations, dataset, frame_ids, p, store, invocation, args, executor, bar.update)
+            for p in protocols
+        ]
+    return pd.concat(grids, ignore_index=True)
+
+
+def _run_protocol(registry, combinations, dataset, frame_ids, protocol, store, invocation, args, executor, progress):
+    """One protocol's grid, serially in this process or on the executor's workers."""
+    from ..runs import executors
+    from ..runs.runner import run_grid
+
+    if executor is not None:
+        return executors.run_grid(
+            registry, combinations, dataset, protocol, store, executor, weights=args.weights, frame_ids=frame_ids,
+            overwrite=args.overwrite, progress=progress, invocation=invocation, chunk_size=args.chunk_size,
+        )  # fmt: skip
+    return run_grid(
+        registry,
+        combinations,
+        dataset,
+        protocol,
+        store,
+        weights=args.weights,
+        device=args.device,
+        frame_ids=frame_ids,
+        overwrite=args.overwrite,
+        progress=progress,
+        invocation=invocation,
+    )

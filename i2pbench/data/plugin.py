@@ -1,7 +1,23 @@
-"""Entry point registering the built-in datasets, by import path: each dataset's module (and what it imports, e.g.
-SciPy for nuScenes, the devkit only when that dataset is used) loads when the dataset is opened."""
+"""Entry point registering the built-in datasets and corruptions, by import path: each dataset's module (and what it
+imports, e.g. SciPy for nuScenes, the devkit only when that dataset is used) loads when the dataset is opened, and the
+corruptions' (OpenCV) when a run corrupts its frames."""
 
 from ..plugins import hookimpl
+
+CORRUPTIONS = {
+    "gaussian-noise": "GaussianNoise",
+    "motion-blur": "MotionBlur",
+    "defocus-blur": "DefocusBlur",
+    "low-light": "LowLight",
+    "jpeg": "JPEG",
+    "fog": "Fog",
+    "beam-reduction": "BeamReduction",
+    "point-dropout": "PointDropout",
+    "range-noise": "RangeNoise",
+    "reflectance-noise": "ReflectanceNoise",
+    "missing-sector": "MissingSector",
+    "intrinsic-error": "IntrinsicError",
+}
 
 
 @hookimpl
@@ -9,3 +25,9 @@ def register_datasets(register) -> None:
     register("i2pbench.data.kitti:KittiOdometry", name="kitti")
     register("i2pbench.data.nuscenes:NuScenes", name="nuscenes")
     register("i2pbench.data.synthetic:SyntheticStreets", name="synthetic")
+
+
+@hookimpl
+def register_corruptions(register) -> None:
+    for name, cls in CORRUPTIONS.items():
+        register(f"i2pbench.corruptions_builtin:{cls}", name=name)

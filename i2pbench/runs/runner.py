@@ -1,6 +1,8 @@
 """Run combinations over a dataset split, one frame at a time, into the results store.
 
 Data flows one way: dataset -> SensorFrame -> protocol -> Frame -> pipeline -> PoseEstimate -> metrics -> record.
+`load_frame` is where the protocol meets a loaded frame, for every executor: it corrupts it (under a corruption) and
+moves it, so a corrupted record differs from a clean one only by its protocol card, which its cache key holds.
 `compute_frame` is a pure function of (job, dataset, frame id, protocol), so frames can be farmed out to workers;
 the store is the only shared state, and it is written one whole file per frame.
 
@@ -25,6 +27,7 @@ import torch
 
 from ..components import STAGE_ORDER
 from ..correspondence import true_match_mask
+from ..corruptions import CorruptionError
 from ..data.base import Dataset
 from ..errors import I2PBenchError
 from ..metrics import pose_errors
@@ -103,13 +106,17 @@ def upstream_key(dataset: Dataset, frame_id: str, job: Job, protocol: Protocol) 
 
 
 def _key_parts(dataset: Dataset, frame_id: str, job: Job, protocol: Protocol) -> dict[str, Any]:
-    return {
+    parts = {
         "data": dataset.identity(),
         "frame": frame_id,
         "stages": job.stages(),
         "weights": job.weights,
         "protocol": protocol.card(),
     }
+    corruption = protocol.component()
+    if corruption is not None:  # its level and class too: an edited table recomputes (clean keys are unchanged)
+        parts["corruption"] = corruption.describe(protocol.severity)
+    return parts
 
 
 @dataclass
@@ -191,7 +198,7 @@ def save(store: ResultsStore, key: str, record: dict[str, Any], upstream: Stored
 def warm_up(job: Job, dataset: Dataset, protocol: Protocol, frame_id: str, times: int) -> None:
     """Untimed runs so one-off costs (lazy imports, allocator growth, JIT) stay out of latency figures."""
     try:
-        frame = protocol.apply(dataset.load(frame_id))
+        frame = load_frame(dataset, frame_id, protocol)
     except I2PBenchError:
         return
     for _ in range(times):
@@ -203,11 +210,20 @@ def run_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> 
     return compute_frame(job, dataset, frame_id, protocol).record
 
 
+def load_frame(dataset: Dataset, frame_id: str, protocol: Protocol) -> Frame:
+    """The registration problem of one frame under the protocol (its corruption included): the only place a run
+    turns a dataset's frame into what the stages see."""
+    return protocol.apply(dataset.load(frame_id))
+
+
 def compute_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> Computed:
-    """Load, run and score one frame; a dataset error becomes a failed record naming the file."""
+    """Load, run and score one frame; a dataset error becomes a failed record naming the file, while a failing
+    corruption stops the run (a failed row would blame the method for the benchmark's fault)."""
     start = time.perf_counter()
     try:
-        frame = protocol.apply(dataset.load(frame_id))
+        frame = load_frame(dataset, frame_id, protocol)
+    except CorruptionError:
+        raise
     except I2PBenchError as exc:
         outcome = FrameOutcome(
             PoseEstimate.failed(str(exc)), {}, error=str(exc), failed_component=f"dataset {dataset.name!r}"
@@ -265,6 +281,8 @@ def _record(
         "weights": job.weights,
         "weights_trained_on": job.pipeline.weights_meta.get("trained_on", ""),
         "protocol": protocol.identity(),
+        "corruption": protocol.corruption,  # "" when clean
+        "severity": protocol.severity,  # 0 when clean
         "status": "ok" if T_pred is not None else "failed",
         "error": outcome.error,
         "failed_component": outcome.failed_component,

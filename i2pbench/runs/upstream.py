@@ -37,6 +37,7 @@ class StoredUpstream:
     T_gt: np.ndarray | None  # [4 x 4] float64
     T_init: np.ndarray | None  # [4 x 4] float64
     match_radius_px: float
+    K_gt: np.ndarray | None = None  # [3 x 3] float64 true intrinsics when K is a corrupted calibration
 
     @classmethod
     def of(cls, frame: Frame, outcome: FrameOutcome) -> StoredUpstream | None:
@@ -46,7 +47,7 @@ class StoredUpstream:
         timings = {kind: outcome.timings.get(kind, math.nan) for kind in UPSTREAM_KINDS}
         return cls(
             outcome.upstream, timings, frame.dataset, frame.frame_id, frame.K, frame.image_size, frame.T_gt,
-            frame.T_init, frame.match_radius_px,
+            frame.T_init, frame.match_radius_px, frame.K_gt,
         )  # fmt: skip
 
     def solver_frame(self) -> Frame:
@@ -67,6 +68,7 @@ class StoredUpstream:
             T_gt=self.T_gt,
             match_radius_px=self.match_radius_px,
             T_init=self.T_init,
+            K_gt=self.K_gt,
         )
 
     def encode(self) -> dict[str, np.ndarray]:
@@ -85,7 +87,7 @@ class StoredUpstream:
             "match_radius_px": np.float64(self.match_radius_px),
             "frame": np.array([self.dataset, self.frame_id]),
         }
-        for name, T in (("T_gt", self.T_gt), ("T_init", self.T_init)):
+        for name, T in (("T_gt", self.T_gt), ("T_init", self.T_init), ("K_gt", self.K_gt)):
             if T is not None:  # absent rather than NaN: decoding gives back None
                 arrays[name] = np.asarray(T, np.float64)
         return arrays
@@ -110,6 +112,7 @@ class StoredUpstream:
             T_gt=a.get("T_gt"),
             T_init=a.get("T_init"),
             match_radius_px=float(a["match_radius_px"]),
+            K_gt=a.get("K_gt"),
         )
 
 
@@ -132,6 +135,7 @@ def _checked(a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     m2, m3, k = len(a["uv"]), len(a["kp3d_index"]), len(a["index2d"])
     shapes = {"uv": (m2, 2), "xyz": (m3, 3), "reflectance": (m3,), "index3d": (k,), "score": (k,), "K": (3, 3)}
     shapes |= {"timings": (len(UPSTREAM_KINDS),), "image_size": (2,), "frame": (2,), "T_gt": (4, 4), "T_init": (4, 4)}
+    shapes["K_gt"] = (3, 3)
     wrong = [
         f"{name} is {a[name].shape}, not {shape}"
         for name, shape in shapes.items()
