@@ -10,3 +10,19 @@ def shared_data() -> Path:
     if not SHARED_DATA.exists():
         pytest.skip("../shared/data is not present")
     return SHARED_DATA
+
+
+@pytest.fixture
+def counted(monkeypatch):
+    """Frames actually computed (not read from the store), in order."""
+    from i2pbench.runs import runner
+
+    calls = []
+    real = runner.compute  # every computed frame passes here, run whole or re-solved from its stored upstream
+
+    def compute(job, dataset, frame_id, *args, **kwargs):
+        calls.append(frame_id)
+        return real(job, dataset, frame_id, *args, **kwargs)
+
+    monkeypatch.setattr(runner, "compute", compute)
+    return calls

@@ -16,7 +16,6 @@ from i2pbench import leaderboard
 from i2pbench.pipeline import Combination
 from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
-from i2pbench.runs import runner
 from i2pbench.runs.invocation import Invocation, history
 from i2pbench.runs.runner import frame_key, prepare, run_grid
 from i2pbench.runs.store import ResultsStore
@@ -33,20 +32,6 @@ RESULT = {
 def registry(monkeypatch):
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
     return build_registry((toy_plugin,))
-
-
-@pytest.fixture
-def counted(monkeypatch):
-    """Counts frames actually computed (not read from the store)."""
-    calls = []
-    real = runner.compute  # every computed frame passes here, run whole or re-solved from its stored upstream
-
-    def compute(job, dataset, frame_id, *args, **kwargs):
-        calls.append(frame_id)
-        return real(job, dataset, frame_id, *args, **kwargs)
-
-    monkeypatch.setattr(runner, "compute", compute)
-    return calls
 
 
 def _run(registry, store, **kwargs):

@@ -1,23 +1,14 @@
 """Batched training of EdgeRegNet's stages: a padded batch is the mean of its frames, padding changes nothing."""
 
 import numpy as np
-import pytest
 import torch
-from test_edgeregnet_training import TINY, tiny_frame, tiny_modules
+from test_edgeregnet_training import TINY, one_thread, tiny_frame, tiny_modules  # noqa: F401 (an autouse fixture)
 
 from i2pbench.api import Keypoints2D, Keypoints3D
 from i2pbench.batching import BatchForward, collate, length_mask, pad_stack, prepare_stage
 from i2pbench.training_data import collate_samples
 
 KINDS = ("encoder2d", "encoder3d", "exchanger", "matcher")
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 def sample(stages, seed, cut=0):

@@ -8,7 +8,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from .run import STAGE_OPTIONS, parse_data_conf, yaml_setting
+from .run import STAGE_OPTIONS, parse_data_conf, positive_int, yaml_setting
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -57,18 +57,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true")
 
 
-def positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive integer")
-    return value
-
-
 def non_negative_int(text: str) -> int:
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected 0 or a positive integer")
-    return value
+    """An argparse type: a count that may be 0 (`--workers 0`: data work in the main process)."""
+    if text.strip() == "0":
+        return 0
+    try:
+        return positive_int(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not 0 or a positive integer") from None
 
 
 def _combination(registry, args: argparse.Namespace):
