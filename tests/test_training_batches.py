@@ -45,7 +45,8 @@ def test_a_batch_of_two_gives_the_mean_loss_and_gradients_of_its_frames():
     loss_b, terms_b, grads_b = loss_and_grads(stages, [b])
     loss_ab, terms_ab, grads_ab = loss_and_grads(stages, [a, b])
     assert terms_a["pairs"] >= 20 and terms_b["pairs"] >= 20
-    # same operations on the same numbers, up to float summation order (measured: 1e-7 on the loss)
+    # same operations on the same numbers, up to float summation order (measured: 1e-6 on the loss, and the
+    # gradients within 2.4% of their tolerance, at 1 and 2 threads)
     torch.testing.assert_close(loss_ab, (loss_a + loss_b) / 2, atol=1e-5, rtol=1e-5)
     assert terms_ab["pairs"] == (terms_a["pairs"] + terms_b["pairs"]) / 2
     for name, grad in grads_ab.items():
@@ -69,7 +70,8 @@ def test_padded_keypoints_change_nothing():
         features.append((d2[0, : small["n2d"]], d3[0, : small["n3d"]]))
     assert not bool(collate_samples([small, large])["masks"][0][0].all())  # the small frame really was padded
     for alone, padded in zip(*features, strict=True):
-        torch.testing.assert_close(padded, alone, atol=1e-5, rtol=1e-5)
+        # masked and unmasked SDPA take different kernels: measured 2.5e-6 apart; attending to the padding: 2.8e-2
+        torch.testing.assert_close(padded, alone, atol=1e-4, rtol=0)
 
 
 def test_collate_lists_what_is_not_a_tensor_and_drops_broken_samples():
