@@ -91,8 +91,8 @@ class BatchForward:
 
     def __call__(self, batch: Mapping[str, Any]) -> tuple[torch.Tensor, dict[str, float]]:
         inputs, (m2, m3) = batch["inputs"], batch["masks"]
-        d2 = self._encode("encoder2d", inputs, m2)
-        d3 = self._encode("encoder3d", inputs, m3)
+        d2 = self._encode("encoder2d", inputs)
+        d3 = self._encode("encoder3d", inputs)
         exchanger = self.stages.get("exchanger")
         if exchanger is not None and batches_natively(exchanger):
             d2, d3 = torch.nn.Module.__call__(exchanger, inputs["exchanger"], d2, d3, m2, m3)
@@ -103,7 +103,7 @@ class BatchForward:
             return matcher.batch_loss(inputs["matcher"], features, m2, m3)
         return _per_frame_loss(matcher, inputs["matcher"][PER_FRAME], features, m2, m3)
 
-    def _encode(self, kind: str, inputs: Mapping[str, Any], mask: torch.Tensor) -> torch.Tensor | None:
+    def _encode(self, kind: str, inputs: Mapping[str, Any]) -> torch.Tensor | None:
         stage = self.stages.get(kind)
         if stage is None:
             return None

@@ -216,14 +216,12 @@ class Trainer:
     def loader(self) -> Iterator[dict[str, Any]]:
         """micro-batches from the current step on: this rank's share of each step's samples, in order."""
         c, d = self.config, self.dist
-        per_step = c.accumulate * d.world * c.batch_size
         indices = [
             ((step * c.accumulate + m) * d.world + d.rank) * c.batch_size + j
             for step in range(self.step, c.steps)
             for m in range(c.accumulate)
             for j in range(c.batch_size)
         ]
-        assert len(indices) == (c.steps - self.step) * per_step // d.world
         loader = torch.utils.data.DataLoader(
             self.samples,
             batch_size=c.batch_size,

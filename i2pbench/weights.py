@@ -7,6 +7,7 @@ pipeline whose learned stages differ in name or config is refused. Files are rea
 from __future__ import annotations
 
 import datetime
+import functools
 import hashlib
 import json
 import os
@@ -31,9 +32,10 @@ class Checkpoint:
     meta: dict[str, Any]
     state: dict[str, dict[str, torch.Tensor]]  # stage kind -> state dict
 
-    @property
+    @functools.cached_property
     def identity(self) -> str:
-        """`<file stem>@<first 8 hex of the file's sha256>`: names the exact bytes that produced a result."""
+        """`<file stem>@<first 8 hex of the file's sha256>`: names the exact bytes that produced a result (read
+        once: a file rewritten later is another checkpoint, loaded anew)."""
         return f"{self.path.stem}@{file_digest(self.path)[:8]}"
 
     @property
@@ -106,9 +108,17 @@ def save_checkpoint(path: str | Path, pipeline: Pipeline, **meta: Any) -> Path:
 
 
 def load_checkpoint(path: str | Path) -> Checkpoint:
+    """The checkpoint at path, verified; a file read before and unchanged since (size, mtime, ctime) is not read
+    again, so `--weights auto` over a grid of combinations reads each shipped file once."""
     path = Path(path)
     if not path.is_file():
         raise WeightsError(f"checkpoint {path} does not exist")
+    stat = path.stat()
+    return _read_checkpoint(path, (stat.st_size, stat.st_mtime_ns, stat.st_ctime_ns))
+
+
+@functools.lru_cache(maxsize=8)  # a few shipped checkpoints of ~10 MB each
+def _read_checkpoint(path: Path, stamp: tuple[int, int, int]) -> Checkpoint:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
         meta = json.loads(payload["meta"])
