@@ -27,7 +27,7 @@ from .components import (
 from .corruptions import Corruption
 from .data.base import Dataset
 from .errors import DataError, StageError
-from .plugins import hookimpl
+from .hookspecs import hookimpl
 from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
 
 if TYPE_CHECKING:

@@ -15,6 +15,7 @@ from collections.abc import Callable
 import pluggy
 
 hookspec = pluggy.HookspecMarker("i2pbench")
+hookimpl = pluggy.HookimplMarker("i2pbench")  # what a plugin decorates its hooks with, beside what they implement
 Register = Callable[..., None]
 
 

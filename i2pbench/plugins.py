@@ -35,7 +35,6 @@ from .corruptions import Corruption, check_class
 from .data.base import Dataset
 from .errors import PluginError
 
-hookimpl = pluggy.HookimplMarker("i2pbench")
 ENTRY_POINT_GROUP = "i2pbench"
 BUILTIN_DISTRIBUTION = "i2pbench"  # the reference plugins ship in i2pbench's own distribution
 

@@ -2,7 +2,7 @@
 imports, e.g. SciPy for nuScenes, the devkit only when that dataset is used) loads when the dataset is opened, and the
 corruptions' (OpenCV) when a run corrupts its frames."""
 
-from ..plugins import hookimpl
+from ..hookspecs import hookimpl
 
 CORRUPTIONS = {
     "gaussian-noise": "GaussianNoise",
