@@ -24,3 +24,8 @@ class LearnedComponent(Component, torch.nn.Module):
         Component.__init__(self, conf)
 
     __repr__ = Component.__repr__
+
+    def compile_targets(self) -> list[torch.nn.Module]:
+        """The fixed-shape submodules worth `torch.compile` (`train --compile`): none by default, since a stage's
+        data-dependent loops (point sampling, say) would be unrolled or recompiled per input, not sped up."""
+        return []

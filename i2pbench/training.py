@@ -19,7 +19,7 @@ import math
 import os
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -62,6 +62,8 @@ class TrainConfig:
     cache_dir: str | None = None  # on-disk cache of extractor outputs and grouping per frame (None: in memory)
     epochs: bool = False  # samples pass through the split in seeded permutations (else a random frame each)
     augment: str = "none"  # "photometric": per-sample exposure, contrast, noise and blur of the image (augment.py)
+    deterministic: bool = False  # torch's deterministic kernels only (an op without one raises, naming itself)
+    compile: str = "off"  # a torch.compile backend ("inductor", "aot_eager") for the stages' `compile_targets`
 
 
 def pick_device(choice: str) -> torch.device:
@@ -83,6 +85,26 @@ def learning_rate(config: TrainConfig, step: int) -> float:
         span = max(config.steps - config.warmup_steps, 1)
         return config.lr * 0.5 * (1 + math.cos(math.pi * min(step - config.warmup_steps, span) / span))
     return config.lr
+
+
+def make_deterministic() -> None:
+    """Deterministic kernels everywhere (cuBLAS needs its workspace pinned before CUDA starts), no cuDNN autotuning:
+    reruns on one machine then match bit for bit on GPU too; on CPU the kernels already do."""
+    os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+    torch.use_deterministic_algorithms(True)
+    torch.backends.cudnn.benchmark = False
+    torch.backends.cudnn.deterministic = True
+
+
+def compile_stages(stages: Mapping[str, Any], backend: str) -> list[str]:
+    """`torch.compile` each learned stage's fixed-shape blocks in place (state dicts keep their keys); returns what
+    was compiled, as `kind.Module` names."""
+    compiled = []
+    for kind, stage in stages.items():
+        for block in getattr(stage, "compile_targets", list)():
+            block.compile(backend=backend)
+            compiled.append(f"{kind}.{type(block).__name__}")
+    return compiled
 
 
 def _resume_path(out: Path) -> Path:
@@ -150,10 +172,13 @@ class Trainer:
         self.device = pick_device(config.device)
         if self.dist.world > 1 and self.device.type == "cuda":
             self.device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
-        if self.device.type == "cuda":  # TF32 matmuls and convolutions: ~free accuracy-wise for this training
+        if self.device.type == "cuda" and not config.deterministic:  # TF32: ~free accuracy-wise for this training
             torch.backends.cuda.matmul.allow_tf32 = True
             torch.backends.cudnn.allow_tf32 = True
+        if config.deterministic:
+            make_deterministic()
         pipeline.to(self.device)
+        self.compiled = compile_stages(pipeline.learned_modules(), config.compile) if config.compile != "off" else []
         self.model = TrainModel(pipeline)
         self.params = [p for m in pipeline.learned_modules().values() for p in m.parameters()]
         # fused on CUDA: one kernel for all parameters, and no per-parameter step counter read back by the host
@@ -270,14 +295,15 @@ class Trainer:
         return terms
 
     def validate(self) -> dict[str, float]:
-        """Acc./RTE/RRE of the full pipeline (solver included) on the first val frames, protocol seed 0."""
+        """Acc./RTE/RRE of the full pipeline (solver included) on `val_frames` frames spread evenly over the val split
+        (so over its sequences, not the first one's first frames), protocol seed 0."""
         if self.val_set is None:
             return {}
         from .runs.runner import true_matches
 
         self.pipeline.eval()
         protocol, rte, rre, true = Protocol(), [], [], []
-        for frame_id in self.val_set.frame_ids()[: self.config.val_frames]:
+        for frame_id in spread(self.val_set.frame_ids(), self.config.val_frames):
             try:
                 frame = protocol.apply(self.val_set.load(frame_id))
             except I2PBenchError:
@@ -326,13 +352,20 @@ class Trainer:
             self.best = acc
             save_checkpoint(best_path(self.out), self.pipeline, best_acc=acc, **self._progress(), **meta)
 
-    def run(self, meta: dict[str, Any], report: Report | None = None, log: Path | None = None) -> None:
+    def run(
+        self,
+        meta: dict[str, Any],
+        report: Report | None = None,
+        log: Path | None = None,
+        tensorboard: Path | None = None,
+    ) -> None:
+        """Train to `config.steps`; `log`: the JSONL step log; `tensorboard`: a TensorBoard log directory too."""
         c = self.config
         if self.dist.main:
             check_writable(self.out)
         model = self._wrapped()
         batches = self.loader()
-        logger = StepLog(log) if log is not None and self.dist.main else None
+        logger = StepLog(log, tensorboard) if (log or tensorboard) and self.dist.main else None
         while self.step < c.steps:
             start = time.perf_counter()
             micro = [next(batches) for _ in range(c.accumulate)]
@@ -350,8 +383,12 @@ class Trainer:
                 continue
             if self.step % c.validate_every == 0 or self.step == c.steps:
                 self._validate_and_keep_best(meta, report)
+                if logger and self.validation:
+                    logger.validation(self.step, self.validation)
             if self.step % c.checkpoint_every == 0 or self.step == c.steps:
                 self.save(meta)
+        if logger:
+            logger.close()
 
     def _wrapped(self) -> torch.nn.Module:
         if self.dist.world == 1:
@@ -362,6 +399,13 @@ class Trainer:
             dist.init_process_group("nccl" if self.device.type == "cuda" else "gloo")
         ids = [self.device.index] if self.device.type == "cuda" else None
         return torch.nn.parallel.DistributedDataParallel(self.model, device_ids=ids)
+
+
+def spread(ids: list[str], count: int) -> list[str]:
+    """`count` of `ids` at even spacing, first and last included (all of them when there are no more)."""
+    if count >= len(ids):
+        return list(ids)
+    return [ids[i] for i in np.linspace(0, len(ids) - 1, count).round().astype(int)]
 
 
 def _data_of(identity: dict[str, Any]) -> dict[str, Any]:
@@ -375,19 +419,57 @@ def _one_thread(_: int) -> None:
 
 
 class StepLog:
-    """one JSON line per step: loss terms, lr, steps/s, data-wait share, peak memory."""
+    """One JSON line per step (loss terms, lr, steps/s, data-wait share, peak memory) and, given a directory, the
+    same scalars as TensorBoard events (`train/...`, validation under `val/...`)."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path | None, tensorboard: Path | None = None) -> None:
         self.path = path
-        path.parent.mkdir(parents=True, exist_ok=True)
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        self.board = _summary_writer(tensorboard) if tensorboard is not None else None
 
     def write(self, step: int, terms: dict[str, Any], seconds: float) -> None:
         record = {"step": step, "seconds": round(seconds, 4), "steps_per_s": round(1 / max(seconds, 1e-9), 3)}
         record.update({k: v for k, v in terms.items() if isinstance(v, int | float | str)})
-        if torch.cuda.is_available():
-            record["max_memory_mb"] = round(torch.cuda.max_memory_allocated() / 2**20, 1)
-        with self.path.open("a") as f:
-            f.write(json.dumps(record) + "\n")
+        record.update(peak_memory_mb())
+        if self.path is not None:
+            with self.path.open("a") as f:
+                f.write(json.dumps(record) + "\n")
+        if self.board is not None:
+            self._scalars("train", step, record)
+
+    def validation(self, step: int, stats: Mapping[str, Any]) -> None:
+        if self.board is not None:
+            self._scalars("val", step, stats)
+
+    def _scalars(self, prefix: str, step: int, values: Mapping[str, Any]) -> None:
+        for key, value in values.items():
+            if key != "step" and isinstance(value, int | float) and math.isfinite(value):
+                self.board.add_scalar(f"{prefix}/{key}", value, step)
+
+    def close(self) -> None:
+        if self.board is not None:
+            self.board.close()
+
+
+def peak_memory_mb() -> dict[str, float]:
+    """the process's peak resident memory, and the GPU's peak allocation when there is one."""
+    import resource
+
+    out = {"max_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**10, 1)}  # KiB on Linux
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        out["max_memory_mb"] = round(torch.cuda.max_memory_allocated() / 2**20, 1)
+    return out
+
+
+def _summary_writer(directory: Path) -> Any:
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError as exc:  # tensorboard is the `train` extra
+        raise I2PBenchError(
+            f"--tensorboard {directory}: the tensorboard package is not installed (pip install 'i2pbench[train]')"
+        ) from exc
+    return SummaryWriter(log_dir=str(directory))
 
 
 def training_meta(train_set: Dataset, config: TrainConfig, world: int = 1) -> dict[str, Any]:

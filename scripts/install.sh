@@ -20,7 +20,7 @@ PYTHON=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q "torch==2.13.0"
-.venv/bin/python -m pip install -q -e ".[dev,ray]"  # ray: --executor ray and its tests
+.venv/bin/python -m pip install -q -e ".[dev,ray,train]"  # ray: --executor ray and its tests; train: TensorBoard
 # nuscenes-devkit pins numpy<2 and opencv-python-headless, which would clash with numpy 2 and the contrib OpenCV:
 # install it without its pins, plus the runtime dependencies it really uses. pip would then end with "ERROR: ...
 # nuscenes-devkit requires numpy<2" (and Shapely~=2.0.3): those are the pins skipped on purpose, so the step does not

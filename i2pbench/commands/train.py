@@ -46,8 +46,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--grad-clip", type=float, default=1.0, help="gradient-norm clip")
     p.add_argument("--augment", choices=("none", "photometric"), default="none", help="per-sample image augmentation")
     p.add_argument("--amp", choices=("off", "bf16"), default="off", help="bf16 autocast of the learned stages")
+    p.add_argument("--deterministic", action="store_true", help="deterministic kernels only (GPU reruns bit-exact)")
+    p.add_argument(
+        "--compile",
+        default="off",
+        metavar="BACKEND",
+        help="torch.compile the stages' fixed-shape blocks with this backend (inductor; aot_eager: no C++ compiler)",
+    )
     p.add_argument("--cache-dir", default="runs/cache/train", help="per-frame extractor/grouping cache ('none': off)")
     p.add_argument("--log", help="JSON-lines log, one record per step (default: <out>.log.jsonl)")
+    p.add_argument("--tensorboard", metavar="DIR", help="also log the step and validation scalars for TensorBoard")
     p.add_argument("--checkpoint-every", type=positive_int, default=250)
     p.add_argument("--validate-every", type=positive_int, default=1000)
     p.add_argument("--val-frames", type=positive_int, default=20)
@@ -113,6 +121,8 @@ def run(args: argparse.Namespace) -> int:
         cache_dir=None if args.cache_dir == "none" else args.cache_dir,
         epochs=args.epochs is not None,
         augment=args.augment,
+        deterministic=args.deterministic,
+        compile=args.compile,
     )
     if args.epochs is not None:
         world = int(os.environ.get("WORLD_SIZE", 1))
@@ -125,7 +135,8 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"training {pipeline.combination.label} ({pipeline.model_size_mb():.2f} MB) on {args.dataset}/"
             f"{args.split}, effective batch {trainer.dist.world * config.accumulate * config.batch_size}"
-            f"{f'; {resumed}' if resumed else ''}",
+            f"{f'; {resumed}' if resumed else ''}"
+            f"{f'; compiled {len(trainer.compiled)} blocks ({args.compile})' if trainer.compiled else ''}",
             file=sys.stderr,
         )
     bar = tqdm(total=config.steps, initial=trainer.step, disable=args.quiet or not main, file=sys.stderr, unit="step")
@@ -141,7 +152,8 @@ def run(args: argparse.Namespace) -> int:
         bar.set_postfix({k: f"{v:.3f}" for k, v in terms.items() if isinstance(v, float)}, refresh=False)
 
     log = Path(args.log) if args.log else out.with_name(out.name + ".log.jsonl")
-    trainer.run(training_meta(train_set, config, trainer.dist.world), report, log=log)
+    board = Path(args.tensorboard) if args.tensorboard else None
+    trainer.run(training_meta(train_set, config, trainer.dist.world), report, log=log, tensorboard=board)
     bar.close()
     if main:
         print(f"checkpoint: {args.out} (step {trainer.step}); validation: {trainer.validation}", file=sys.stderr)

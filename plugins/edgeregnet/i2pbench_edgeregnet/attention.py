@@ -107,6 +107,10 @@ class AttentionExchanger(LearnedComponent, Exchanger):
     def check_compatible(self, upstream: Mapping[str, Component]) -> str | None:
         return descriptor_dim_mismatch(self, upstream)
 
+    def compile_targets(self) -> list[nn.Module]:
+        """the attention blocks: dense matmuls, SDPA and MLPs on [B x M x D], shapes fixed by the keypoint caps."""
+        return list(self.blocks)
+
     def prepare(
         self,
         frame: Frame,

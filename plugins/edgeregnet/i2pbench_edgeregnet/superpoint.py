@@ -85,6 +85,10 @@ class SuperPointEncoder(LearnedComponent, Encoder2D):
         head = self.conf["head_channels"]
         self.head = nn.Sequential(conv(c4, head), nn.ReLU(inplace=True), conv(head, self.conf["descriptor_dim"], 1))
 
+    def compile_targets(self) -> list[nn.Module]:
+        """the VGG backbone and descriptor head: convolutions over a fixed image size (the sampling is left eager)."""
+        return [self.backbone, self.head]
+
     def prepare(
         self, frame: Frame, kp2d: Keypoints2D, device: torch.device | str = "cpu", cache: dict | None = None
     ) -> dict[str, torch.Tensor]:
