@@ -57,8 +57,19 @@ def pixels_to_keypoints(rows: np.ndarray, cols: np.ndarray, frame: Frame, conf: 
     return Keypoints2D(uv=uv.reshape(-1, 2))
 
 
+def edge_pixels(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of a [H x W] mask's non-zero pixels in raster order, as np.nonzero gives them; OpenCV's
+    findNonZero reads a uint8 (or bool) mask 3-4x faster than np.nonzero on the 2D array."""
+    mask = np.ascontiguousarray(mask)
+    points = cv2.findNonZero(mask.view(np.uint8) if mask.dtype == bool else mask.astype(np.uint8, copy=False))
+    if points is None:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    points = points.reshape(-1, 2)
+    return points[:, 1], points[:, 0]
+
+
 class EdgeExtractor2D(Extractor2D):
-    """An extractor defined by a boolean edge mask of the grayscale image."""
+    """An extractor defined by an edge mask of the grayscale image (bool, or uint8 with edges non-zero)."""
 
     default_conf: ClassVar[dict[str, Any]] = dict(CAP_CONF)
 
@@ -66,7 +77,7 @@ class EdgeExtractor2D(Extractor2D):
         raise NotImplementedError
 
     def __call__(self, frame: Frame) -> Keypoints2D:
-        rows, cols = np.nonzero(self.edge_mask(grayscale(frame.image)))
+        rows, cols = edge_pixels(self.edge_mask(grayscale(frame.image)))
         return pixels_to_keypoints(rows, cols, frame, self.conf)
 
 
@@ -92,7 +103,7 @@ class CannyExtractor(EdgeExtractor2D):
     }
 
     def edge_mask(self, gray: np.ndarray) -> np.ndarray:
-        return cv2.Canny(gray, self.conf["low"], self.conf["high"]) > 0
+        return cv2.Canny(gray, self.conf["low"], self.conf["high"])  # 0 or 255
 
 
 class SobelExtractor(EdgeExtractor2D):

@@ -33,37 +33,42 @@ CAP_CONF: dict[str, Any] = {
 }
 
 
-def scan_order(ring: np.ndarray) -> np.ndarray:
-    """Point indices grouped by ring, keeping the scan order within each ring (a stable sort; identity if grouped)."""
+def scan_order(ring: np.ndarray) -> np.ndarray | None:
+    """Point indices grouped by ring, keeping the scan order within each ring (a stable sort); None when the points
+    are grouped already (every KITTI and nuScenes scan), so no copy is made."""
     ring = np.asarray(ring)
     if ring.size < 2 or np.all(ring[1:] >= ring[:-1]):
-        return np.arange(ring.size, dtype=np.int64)
+        return None
     return np.argsort(ring, kind="stable").astype(np.int64)
 
 
-def sorted_unique(index: np.ndarray) -> np.ndarray:
-    """Sorted distinct values; np.unique is ~50x slower than a sort on 1e5 ints under numpy 2.4."""
-    index = np.sort(np.asarray(index, dtype=np.int64))
-    return index[np.concatenate(([True], index[1:] != index[:-1]))] if index.size else index
-
-
-def select_discontinuities(delta: np.ndarray, same_ring: np.ndarray, threshold: float) -> np.ndarray:
-    """Scan-order positions selected by the paper's rule, given delta[i] (the change from i to i+1) for i < n - 1.
+def select_discontinuities(
+    delta: np.ndarray, same_ring: np.ndarray, threshold: float, out: np.ndarray | None = None
+) -> np.ndarray:
+    """[n] bool over scan-order positions, selected by the paper's rule, given delta[i] (the change from i to i+1)
+    for i < n - 1; `out` (when given) is or-ed into, so several rules mark one mask without index lists.
 
     `same_ring[i]` says points i and i+1 lie on the same ring. A rise at i selects i-1 (when it is on the ring too),
-    a drop at i selects i+1.
+    a drop at i selects i+1. NaN deltas (no return on either side) select nothing.
     """
-    rise = same_ring & (delta > threshold)
-    drop = same_ring & (delta < -threshold)
-    before_rise = np.flatnonzero(rise[1:] & same_ring[:-1])  # i - 1 for every rise at i >= 1
-    return sorted_unique(np.concatenate((before_rise, np.flatnonzero(drop) + 1)))
+    out = np.zeros(delta.size + 1, dtype=bool) if out is None else out
+    drop = delta < -threshold
+    drop &= same_ring
+    out[1:] |= drop
+    rise = delta[1:] > threshold
+    rise &= same_ring[1:]
+    rise &= same_ring[:-1]  # i - 1 for every rise at i >= 1, on the ring too
+    out[:-2] |= rise
+    return out
 
 
 def relative_change(values: np.ndarray) -> np.ndarray:
-    """(v_{i+1} - v_i) / v_i, 0 where v_i = 0."""
-    delta = np.diff(values)
+    """(v_{i+1} - v_i) / v_i, NaN where v_i = 0 (no return: never a relative jump)."""
     base = values[:-1]
-    return np.divide(delta, base, out=np.zeros_like(delta), where=base > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        change = np.diff(values) / base
+    change[base <= 0] = np.nan
+    return change
 
 
 def normalised_reflectance(points: np.ndarray) -> np.ndarray:
@@ -74,23 +79,62 @@ def normalised_reflectance(points: np.ndarray) -> np.ndarray:
     return refl / top if top > 1.0 else np.clip(refl, 0.0, 1.0)
 
 
-def scanline_edges(frame: Frame, values: np.ndarray, threshold: float, relative: bool) -> np.ndarray:
-    """Point indices (distinct, in scan order) where `values` jump along a ring by more than `threshold`, either
-    relative to the current value (depth) or absolute (reflectance)."""
-    order = scan_order(frame.ring)
-    ring, ordered = frame.ring[order], values[order]
-    change = relative_change(ordered) if relative else np.diff(ordered)
-    return order[select_discontinuities(change, ring[1:] == ring[:-1], threshold)]
+_ROW_OF_BYTES = {1: np.uint8, 2: np.uint16, 4: np.uint32, 8: np.uint64}
+
+
+def finite_rows(values: np.ndarray) -> np.ndarray:
+    """[N] bool: rows of [N x C] with every value finite. For C of 1, 2, 4 or 8 a row of isfinite's bools is read as
+    one unsigned integer whose bytes must all be 1: 30x faster than .all(axis=1) over 4 columns, same answer."""
+    finite = np.isfinite(values)
+    width = _ROW_OF_BYTES.get(finite.shape[1]) if finite.ndim == 2 and finite.flags.c_contiguous else None
+    if width is None:
+        return finite.all(axis=1)
+    ones = int.from_bytes(b"\x01" * finite.shape[1], "little")
+    return finite.view(width)[:, 0] == ones
+
+
+class ScanLines:
+    """A frame's points in scan order (grouped by ring, order kept within a ring) and one mask of selected points,
+    which every rule marks: a union of rules then needs no index lists, sorting or dedup."""
+
+    def __init__(self, frame: Frame) -> None:
+        self.frame = frame
+        self.order = scan_order(frame.ring)
+        ring = self.ordered(np.asarray(frame.ring))
+        self.same_ring = ring[1:] == ring[:-1]
+        self.mask = np.zeros(ring.size, dtype=bool)
+
+    def ordered(self, values: np.ndarray) -> np.ndarray:
+        return values if self.order is None else values[self.order]
+
+    def mark_depth(self, eps_depth: float) -> None:
+        """Depth-discontinuous points: relative range change beyond eps_D (ranges as the sensor measured them)."""
+        change = relative_change(self.ordered(self.frame.ranges.astype(np.float64)))
+        select_discontinuities(change, self.same_ring, eps_depth, self.mask)
+
+    def mark_reflectance(self, eps_reflectance: float) -> None:
+        """Reflectance-discontinuous points: absolute reflectance change beyond eps_R."""
+        change = np.diff(self.ordered(normalised_reflectance(self.frame.points)))
+        select_discontinuities(change, self.same_ring, eps_reflectance, self.mask)
+
+    def marked(self) -> np.ndarray:
+        """Point indices of the marked points, distinct and sorted."""
+        positions = np.flatnonzero(self.mask)
+        return positions if self.order is None else np.sort(self.order[positions])
 
 
 def depth_edges(frame: Frame, eps_depth: float) -> np.ndarray:
-    """Depth-discontinuous points: relative range change beyond eps_D (ranges as the sensor measured them)."""
-    return scanline_edges(frame, frame.ranges.astype(np.float64), eps_depth, relative=True)
+    """Depth-discontinuous point indices, distinct and sorted."""
+    lines = ScanLines(frame)
+    lines.mark_depth(eps_depth)
+    return lines.marked()
 
 
 def reflectance_edges(frame: Frame, eps_reflectance: float) -> np.ndarray:
-    """Reflectance-discontinuous points: absolute reflectance change beyond eps_R."""
-    return scanline_edges(frame, normalised_reflectance(frame.points), eps_reflectance, relative=False)
+    """Reflectance-discontinuous point indices, distinct and sorted."""
+    lines = ScanLines(frame)
+    lines.mark_reflectance(eps_reflectance)
+    return lines.marked()
 
 
 class EdgeExtractor3D(Extractor3D):
@@ -99,11 +143,16 @@ class EdgeExtractor3D(Extractor3D):
     default_conf: ClassVar[dict[str, Any]] = dict(CAP_CONF)
 
     def candidates(self, frame: Frame) -> np.ndarray:
+        """Candidate point indices, distinct and sorted."""
         raise NotImplementedError
 
+    def finite_candidates(self, frame: Frame) -> np.ndarray:
+        """The candidates whose point is finite: a corrupt return is never a keypoint."""
+        index = self.candidates(frame)
+        return index[finite_rows(np.take(frame.points, index, axis=0))]  # take: ~10x a fancy index on [N x 4]
+
     def __call__(self, frame: Frame) -> Keypoints3D:
-        index = sorted_unique(self.candidates(frame))
-        index = index[np.isfinite(frame.points[index]).all(1)]  # a corrupt return is never a keypoint
+        index = self.finite_candidates(frame)
         keep = cap(index.size, self.conf["max_keypoints"], self.conf["seed"], frame)
         return Keypoints3D.from_index(frame, index[keep])
 
@@ -135,8 +184,10 @@ class DepthReflectanceExtractor(EdgeExtractor3D):
     default_conf: ClassVar[dict[str, Any]] = {**CAP_CONF, "eps_depth": 0.1, "eps_reflectance": 0.2}
 
     def candidates(self, frame: Frame) -> np.ndarray:
-        depth = depth_edges(frame, self.conf["eps_depth"])
-        return np.concatenate((depth, reflectance_edges(frame, self.conf["eps_reflectance"])))
+        lines = ScanLines(frame)  # one mask for both rules: the union needs no sort or dedup
+        lines.mark_depth(self.conf["eps_depth"])
+        lines.mark_reflectance(self.conf["eps_reflectance"])
+        return lines.marked()
 
 
 class RandomExtractor3D(EdgeExtractor3D):
@@ -146,3 +197,11 @@ class RandomExtractor3D(EdgeExtractor3D):
 
     def candidates(self, frame: Frame) -> np.ndarray:
         return np.arange(frame.points.shape[0], dtype=np.int64)
+
+    def __call__(self, frame: Frame) -> Keypoints3D:
+        points = frame.points
+        # a whole finite scan (the usual case): the candidates are all points and the cap's positions are their
+        # indices, with no index list built
+        if np.isfinite(points).all():
+            return Keypoints3D.from_index(frame, cap(len(points), self.conf["max_keypoints"], self.conf["seed"], frame))
+        return super().__call__(frame)

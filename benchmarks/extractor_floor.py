@@ -1,0 +1,130 @@
+"""Each classic extractor against its floor: the same rule in bare library calls, timed in turn in one run.
+
+The floor of an image extractor is its OpenCV call(s) on the grey image plus the candidates' coordinates
+(`cv2.findNonZero`, the fastest way to list a mask's pixels): the extractor must return those coordinates, so no
+wrapper can go below that. A LiDAR rule's floor is the rule in bare numpy on a scan already grouped by ring (KITTI's
+is), down to the selected indices; a random extractor's is the draw itself (a generator seeded per frame, a subset,
+sorted). What the extractor adds on top is its wrapping: dropping non-finite points, the seeded cap, checking and
+packing the keypoints. The ratio extractor / floor says what that costs; the target is <= 1.3x.
+
+    .venv/bin/python benchmarks/extractor_floor.py --rounds 30 --threads 1
+
+Rounds alternate extractor and floor, so load on a shared machine hits both alike. The table prints the fastest
+round of each (on a loaded machine the minimum is the least disturbed estimate of the work itself) and their ratio,
+then the median of the per-round ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from i2pbench.data.kitti import KittiOdometry
+from i2pbench.plugins import default_registry
+from i2pbench.protocol import Protocol
+from i2pbench.types import Frame
+
+KITTI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_odometry"
+CAP = 3000
+
+
+def grey(frame: Frame) -> np.ndarray:
+    return cv2.cvtColor(np.ascontiguousarray(frame.image), cv2.COLOR_RGB2GRAY)
+
+
+def lsd_floor(frame: Frame) -> object:
+    return cv2.createLineSegmentDetector().detect(grey(frame))  # segments: rasterising them is the rule's own work
+
+
+def canny_floor(frame: Frame) -> object:
+    return cv2.findNonZero(cv2.Canny(grey(frame), 50, 150))
+
+
+def sobel_floor(frame: Frame) -> object:
+    g = grey(frame)
+    mask = cv2.magnitude(cv2.Sobel(g, cv2.CV_32F, 1, 0), cv2.Sobel(g, cv2.CV_32F, 0, 1)) > 150.0
+    return cv2.findNonZero(mask.view(np.uint8))
+
+
+def random_floor(count: int) -> Callable[[Frame], object]:
+    def draw(frame: Frame) -> np.ndarray:
+        seed = np.frombuffer(hashlib.sha256(f"0\x00{frame.dataset}\x00{frame.frame_id}".encode()).digest(), np.uint32)
+        return np.sort(np.random.default_rng(seed.tolist()).choice(count, CAP, replace=False))
+
+    return draw
+
+
+def scanline_floor(eps_depth: float | None, eps_reflectance: float | None) -> Callable[[Frame], object]:
+    """the paper's rule in bare numpy on a scan grouped by ring (KITTI's is): relative range change in float64,
+    absolute reflectance change, rise selects i-1, drop selects i+1, along a ring only."""
+
+    def rule(frame: Frame) -> np.ndarray:
+        same = frame.ring[1:] == frame.ring[:-1]
+        selected = np.zeros(len(frame.ring), bool)
+        changes = []
+        if eps_depth is not None:
+            r = frame.ranges.astype(np.float64)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                changes.append((np.where(r[:-1] > 0, np.diff(r) / r[:-1], np.nan), eps_depth))
+        if eps_reflectance is not None:
+            refl = frame.points[:, 3].astype(np.float64)
+            refl = refl / refl.max() if refl.max() > 1 else np.clip(refl, 0, 1)  # a sensor's own scale -> [0, 1]
+            changes.append((np.diff(refl), eps_reflectance))
+        for change, eps in changes:
+            selected[1:] |= same & (change < -eps)
+            selected[:-2] |= same[1:] & same[:-1] & (change[1:] > eps)
+        return np.flatnonzero(selected)
+
+    return rule
+
+
+def floors(frame: Frame) -> dict[tuple[str, str], Callable[[Frame], object]]:
+    width, height = frame.image_size
+    return {
+        ("extractor2d", "lsd"): lsd_floor,
+        ("extractor2d", "canny"): canny_floor,
+        ("extractor2d", "sobel"): sobel_floor,
+        ("extractor2d", "random"): random_floor(width * height),
+        ("extractor3d", "depth"): scanline_floor(0.1, None),
+        ("extractor3d", "reflectance"): scanline_floor(None, 0.2),
+        ("extractor3d", "depth+reflectance"): scanline_floor(0.1, 0.2),
+        ("extractor3d", "random"): random_floor(len(frame.points)),
+    }
+
+
+def seconds(fn: Callable[[Frame], object], frame: Frame) -> float:
+    start = time.perf_counter()
+    fn(frame)
+    return time.perf_counter() - start
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--rounds", type=int, default=100)
+    parser.add_argument("--threads", type=int, default=1, help="OpenCV threads (both sides alike)")
+    args = parser.parse_args()
+    cv2.setNumThreads(args.threads)
+    frame = Protocol().apply(KittiOdometry("all", {"root": str(KITTI)}).load("00/000000"))
+    registry = default_registry()
+    print(f"real KITTI 00/000000: {frame.image_size[0]} x {frame.image_size[1]} image, {len(frame.points)} points")
+    print(f"{'extractor':<32} {'extractor ms':>12} {'floor ms':>9} {'ratio':>7} {'median of ratios':>17}")
+    for (kind, name), floor in floors(frame).items():
+        extractor = registry.component(kind, name)({"max_keypoints": CAP})
+        extractor(frame), floor(frame)  # warm-up: OpenCV allocations, page faults
+        pairs = [(seconds(extractor, frame), seconds(floor, frame)) for _ in range(args.rounds)]
+        ours, bare = np.array(pairs).T
+        ratios = ours / bare
+        print(
+            f"{kind + ' ' + name:<32} {ours.min() * 1e3:>12.3f} {bare.min() * 1e3:>9.3f} "
+            f"{ours.min() / bare.min():>6.2f}x {np.median(ratios):>16.2f}x"
+        )
+
+
+if __name__ == "__main__":
+    main()
