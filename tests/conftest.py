@@ -15,14 +15,14 @@ def shared_data() -> Path:
 @pytest.fixture
 def counted(monkeypatch):
     """Frames actually computed (not read from the store), in order."""
-    from i2pbench.runs import runner
+    from i2pbench.runs import worker
 
     calls = []
-    real = runner.compute  # every computed frame passes here, run whole or re-solved from its stored upstream
+    real = worker.compute  # every computed frame passes here, run whole or re-solved, whichever executor runs it
 
     def compute(job, dataset, frame_id, *args, **kwargs):
         calls.append(frame_id)
         return real(job, dataset, frame_id, *args, **kwargs)
 
-    monkeypatch.setattr(runner, "compute", compute)
+    monkeypatch.setattr(worker, "compute", compute)
     return calls

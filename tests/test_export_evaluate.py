@@ -20,7 +20,7 @@ from i2pbench.data.kitti import KittiOdometry
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import build_registry, default_registry
 from i2pbench.protocol import Protocol
-from i2pbench.runs import runner
+from i2pbench.runs import frames
 from i2pbench.runs.runner import run_grid
 from i2pbench.runs.store import ResultsStore
 
@@ -167,13 +167,13 @@ def test_a_damaged_upstream_is_set_aside_and_its_frame_run_whole(monkeypatch, tm
     with np.load(damaged) as arrays:
         damaged_frame = str(arrays["frame"][1])
     damaged.write_bytes(damaged.read_bytes()[:100])  # as a power cut could leave it
-    whole, real = [], runner.compute_frame
+    whole, real = [], frames.compute_frame
 
     def compute_frame(job, data, frame_id, protocol):
         whole.append(frame_id)
         return real(job, data, frame_id, protocol)
 
-    monkeypatch.setattr(runner, "compute_frame", compute_frame)
+    monkeypatch.setattr(frames, "compute_frame", compute_frame)
     records = run_grid(registry, [Combination(TOY)], dataset, Protocol(), store, overwrite=False)
     assert sorted(whole) == sorted(
         ["bad", damaged_frame]

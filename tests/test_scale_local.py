@@ -97,6 +97,21 @@ def test_frame_failures_stay_per_frame_records(tmp_path, monkeypatch):
     assert "exploded on purpose" in pooled["error"].iloc[3]
 
 
+def test_a_frame_two_spellings_of_one_combination_share_is_computed_once(tmp_path, monkeypatch, counted):
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    learned = {**TOY, "encoder2d": "linear"}
+    combos = [Combination(learned), Combination(learned, {"encoder2d": {"dim": 4}})]  # 4 is the default: same keys
+    ticks: list[int] = []
+    records = run_grid(
+        build_registry((toy_plugin,)), combos, toy_plugin.ToyDataset("test", {}), Protocol(),
+        ResultsStore(tmp_path), progress=ticks.append,
+    )  # fmt: skip
+    assert counted == ["a", "bad", "c"] and sum(ticks) == 6
+    assert records["combination"].tolist() == [combos[0].display] * 3 + [combos[1].display] * 3
+    first, second = (_results(records.iloc[rows]).drop(columns="combination") for rows in (slice(3), slice(3, 6)))
+    pd.testing.assert_frame_equal(first, second)
+
+
 def test_the_cli_runs_two_workers_and_records_the_executor(kitti, tmp_path):
     cmd = [
         sys.executable, "-m", "i2pbench.cli", "run", "--extractor", "canny", "--extractor3d", "depth", "--matcher",

@@ -1,1 +1,7 @@
-"""Running combinations over datasets: grid expansion, execution, and the per-frame results store."""
+"""Running combinations over datasets into the per-frame results store.
+
+Layered without import cycles: `jobs` (a prepared combination, cache keys) and `frames` (one frame's record) at the
+bottom; `tasks` (what a worker is handed and sends back) and `worker` (the one worker code) above them; `executors`
+(the driver, and the in-process and process-pool executors) and `ray_executor` above those; `runner` (the serial
+entry point) on top.
+"""

@@ -1,27 +1,25 @@
-"""Run a grid's frames on several workers: a local process pool here, a Ray cluster in `ray_executor`.
+"""Run a grid's frames on an executor's workers: in this process (serial), on a local process pool, or on a Ray
+cluster (`ray_executor`). Every executor runs the same `worker.Worker`; only how tasks reach it differs.
 
-The driver plans the work as tasks of (combination, chunk of frames not stored yet), each frame carrying its cache
-key. Every worker receives the prepared jobs (pipelines with their weights) once, when it starts, pins its own thread
-counts so that N workers on N cores do not oversubscribe them, and warms each pipeline up before its first frame.
-`compute_frame` is pure, so a frame gives the same record whichever worker runs it and the leaderboard equals a
-serial run's up to latency. Local workers re-solve frames whose upstream the store holds, as a serial run does; Ray
-workers, which do not read the store, run frames whole and hand their upstreams back for the driver to store.
+The driver looks every frame up in the store first and plans the rest as tasks of (combination, chunk of frames),
+each frame carrying its cache key; a frame whose key another frame of the grid already has (an equivalent spelling)
+is computed once. `compute_frame` is pure, so a frame gives the same record whichever worker runs it and the
+leaderboard equals a serial run's up to latency. Workers that read the store re-solve frames whose upstream it
+holds; Ray workers, which do not read it, run frames whole and hand their upstreams back for the driver to store.
 
-Who writes the store: local workers write each finished frame themselves (same machine; per-frame files written
-atomically, so a killed run keeps every finished frame, as a serial run does); Ray workers hand records back to the
-driver, which writes them, so a cluster needs no shared filesystem for results.
+Who writes the store: in-process and local workers write each finished frame themselves (same machine; per-frame
+files written atomically, so a killed run keeps every finished frame); Ray workers hand records back to the driver,
+which writes them, so a cluster needs no shared filesystem for results.
 """
 
 from __future__ import annotations
 
 import math
 import multiprocessing
-import os
-import typing
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import pandas as pd
@@ -32,118 +30,32 @@ from ..lifeline import exit_with_parent
 from ..pipeline import Combination
 from ..plugins import Registry
 from ..protocol import Protocol
-from .environment import fix_threads
-from .runner import Job, Progress, compute, frame_key, labels, prepare, save
+from .frames import save
+from .jobs import Job, frame_key, labels, prepare
 from .store import ResultsStore
-from .upstream import StoredUpstream
+from .tasks import Deliver, Executor, Progress, Result, Task, Work
+from .worker import Worker
 
 DEFAULT_CHUNK = 8  # frames per task: few enough to balance a small grid, enough to amortise a task's overhead
-THREAD_ENV = (
-    "OMP_NUM_THREADS",
-    "MKL_NUM_THREADS",
-    "OPENBLAS_NUM_THREADS",
-    "NUMEXPR_NUM_THREADS",
-    "VECLIB_MAXIMUM_THREADS",
-)
-
-
-@dataclass(frozen=True)
-class Task:
-    """Frames of one combination to compute, with the cache key of each (planned by the driver)."""
-
-    job: int  # index into Work.jobs
-    frame_ids: tuple[str, ...]
-    keys: tuple[str, ...]
-
-
-@dataclass(frozen=True)
-class Result:
-    """One computed frame; `stored` says the worker already wrote it to the store."""
-
-    job: int
-    frame_id: str
-    key: str
-    record: dict[str, Any]
-    stored: bool
-    upstream: StoredUpstream | None = None  # for the driver to store, when the worker did not
-
-
-@dataclass
-class Work:
-    """What every worker needs, shipped once per worker."""
-
-    jobs: list[Job]
-    dataset: Dataset
-    protocol: Protocol
-    invocation: str = ""
-    warmup: int = 1
-    store_root: str | None = None  # set: workers write each finished frame there themselves
-    overwrite: bool = False  # recompute stored upstreams too
-
-
-Deliver = Callable[[Sequence[Result]], None]
-
-
-class Executor(typing.Protocol):
-    """Runs tasks on workers, handing each finished frame (or chunk) to `deliver` in the driver."""
-
-    @property
-    def workers(self) -> int: ...
-
-    def start(self, work: Work, store: ResultsStore) -> None:
-        """Start the workers with `work`; `store` is for executors whose workers write results themselves."""
-
-    def run(self, tasks: Sequence[Task], deliver: Deliver) -> None: ...
-
-    def close(self) -> None: ...
-
-
-def pin_threads(threads: int) -> int:
-    """Fix this process's thread counts: env for libraries that start later, `fix_threads` for those loaded."""
-    for name in THREAD_ENV:
-        os.environ[name] = str(threads)
-    return fix_threads(threads)
-
-
-class Worker:
-    """A worker's state: the jobs it received once, where they run, and which ones are warmed up."""
-
-    def __init__(self, work: Work, threads: int, device: str | None = None) -> None:
-        pin_threads(threads)
-        if device:
-            for job in work.jobs:
-                job.pipeline.to(device)
-                job.device = device
-        self.work = work
-        self.store = ResultsStore(work.store_root) if work.store_root else None
-        self.warm: dict[int, set[str]] = {}
-
-    def run(self, task: Task) -> Iterator[Result]:
-        """Compute the task's frames one by one (re-solving those whose upstream the store holds, when this worker
-        reads the store), warming the job up before its first frame in this worker."""
-        w, job = self.work, self.work.jobs[task.job]
-        warm = self.warm.setdefault(task.job, set())
-        for frame_id, key in zip(task.frame_ids, task.keys, strict=True):
-            computed = compute(job, w.dataset, frame_id, w.protocol, self.store, warm, w.warmup, not w.overwrite)
-            record = {**computed.record, "invocation": w.invocation}
-            if self.store is not None:
-                save(self.store, key, record, computed.upstream)
-                yield Result(task.job, frame_id, key, record, True)
-            else:
-                yield Result(task.job, frame_id, key, record, False, computed.upstream)
+Slot = tuple[int, str]  # (job index, frame id)
 
 
 @dataclass
 class Plan:
-    """The grid's cache keys, the records found in the store, and the frames still to compute per job."""
+    """The grid's cache keys, the records found in the store, the frames still to compute per job, and the frames
+    whose key another one of the grid has (computed once, as that frame)."""
 
-    keys: dict[tuple[int, str], str]
-    records: dict[tuple[int, str], dict[str, Any]]
+    keys: dict[Slot, str]
+    records: dict[Slot, dict[str, Any]]
     missing: dict[int, list[str]] = field(default_factory=dict)
+    same: dict[Slot, Slot] = field(default_factory=dict)
 
     @property
     def to_compute(self) -> int:
         return sum(len(frames) for frames in self.missing.values())
+
+    def record(self, job: int, frame_id: str) -> dict[str, Any]:
+        return self.records[self.same.get((job, frame_id), (job, frame_id))]
 
     def tasks(self, workers: int, chunk_size: int = DEFAULT_CHUNK) -> list[Task]:
         """Chunks of at most `chunk_size` frames, smaller when a job has too few frames to keep every worker busy."""
@@ -165,12 +77,15 @@ def plan(
     overwrite: bool = False,
 ) -> Plan:
     """Look every frame up in the store first: only frames not stored become tasks (all of them with overwrite)."""
-    result = Plan({}, {})
+    result, first = Plan({}, {}), dict[str, Slot]()
     for j, job in enumerate(jobs):
-        for frame_id in frame_ids:
+        for frame_id in dict.fromkeys(frame_ids):
             key = result.keys[j, frame_id] = frame_key(dataset, frame_id, job, protocol)
-            record = None if overwrite else store.get(key)
-            if record is None:
+            record = None if overwrite or key in first else store.get(key)
+            if key in first:
+                result.same[j, frame_id] = first[key]
+            elif record is None:
+                first[key] = (j, frame_id)
                 result.missing.setdefault(j, []).append(frame_id)
             else:
                 result.records[j, frame_id] = record
@@ -182,7 +97,7 @@ class Collector:
 
     def __init__(self, plan: Plan, store: ResultsStore, progress: Progress | None) -> None:
         self.plan, self.store, self.progress = plan, store, progress
-        self.computed: set[tuple[int, str]] = set()
+        self.computed: set[Slot] = set()
 
     def __call__(self, results: Sequence[Result]) -> None:
         fresh = [r for r in results if (r.job, r.frame_id) not in self.computed]  # a replayed frame is dropped
@@ -201,29 +116,48 @@ def run_grid(
     dataset: Dataset,
     protocol: Protocol,
     store: ResultsStore,
-    executor: Executor,
+    executor: Executor | None = None,
     *,
     weights: str = "auto",
+    device: str = "cpu",
     frame_ids: Sequence[str] | None = None,
     overwrite: bool = False,
     progress: Progress | None = None,
     invocation: str = "",
     chunk_size: int = DEFAULT_CHUNK,
 ) -> pd.DataFrame:
-    """`runner.run_grid` on an executor's workers; the same records, in the same order, as a serial run.
+    """Every combination over the split on the executor's workers, or serially in this process without one (its
+    learned stages on `device`; an executor's workers choose their own); returns this grid's per-frame records
+    (cached ones included), in the same order whichever runs them.
 
     Pipelines are prepared on the CPU (so an incompatible combination is refused before any worker starts, and
     weights pickle without a GPU); each worker moves them to its own device.
     """
     jobs = prepare(registry, combinations, weights, "cpu", dataset.name)
     frame_ids = list(frame_ids if frame_ids is not None else dataset.frame_ids())
-    work_plan = plan(jobs, dataset, frame_ids, protocol, store, overwrite)
+    work = Work(jobs, dataset, protocol, invocation, overwrite=overwrite)
+    executor = executor if executor is not None else InProcessExecutor(device)
+    return pd.DataFrame(run_work(work, frame_ids, store, executor, progress, chunk_size))
+
+
+def run_work(
+    work: Work,
+    frame_ids: Sequence[str],
+    store: ResultsStore,
+    executor: Executor,
+    progress: Progress | None = None,
+    chunk_size: int = DEFAULT_CHUNK,
+) -> list[dict[str, Any]]:
+    """The work's records, job by job with frames in order: read from the store, else computed on the executor's
+    workers (started only when something is to compute). Labels follow each job's spelling."""
+    work_plan = plan(work.jobs, work.dataset, frame_ids, work.protocol, store, work.overwrite)
     if progress and work_plan.records:
         progress(len(work_plan.records))
     if work_plan.to_compute:
-        work = Work(jobs, dataset, protocol, invocation, overwrite=overwrite)
         run_plan(work_plan, work, store, executor, progress, chunk_size)
-    return _frame(jobs, frame_ids, work_plan)
+    if progress and work_plan.same:
+        progress(len(work_plan.same))
+    return [{**work_plan.record(j, f), **labels(job)} for j, job in enumerate(work.jobs) for f in frame_ids]
 
 
 def run_plan(
@@ -247,19 +181,39 @@ def run_plan(
         )
 
 
-def _frame(jobs: Sequence[Job], frame_ids: Sequence[str], work_plan: Plan) -> pd.DataFrame:
-    """Records in the serial run's order (job by job, frames in order), labels spelled as the serial run does."""
-    rows = [{**work_plan.records[j, frame_id], **labels(job)} for j, job in enumerate(jobs) for frame_id in frame_ids]
-    return pd.DataFrame(rows)
+class InProcessExecutor:
+    """Serial running: one worker in this process, writing each frame to the store and delivering it as it finishes.
+
+    It keeps the process's thread counts (`i2pbench run --threads`); `device` moves the pipelines, None leaves them
+    where they were prepared.
+    """
+
+    workers = 1
+
+    def __init__(self, device: str | None = None) -> None:
+        self.device = device
+        self._worker: Worker | None = None
+
+    def start(self, work: Work, store: ResultsStore) -> None:
+        self._worker = Worker(work, store, device=self.device)
+
+    def run(self, tasks: Sequence[Task], deliver: Deliver) -> None:
+        assert self._worker is not None, "start() first"
+        for task in tasks:
+            for result in self._worker.run(task):
+                deliver([result])
+
+    def close(self) -> None:
+        self._worker = None
 
 
-_WORKER: Worker | None = None  # a pool process's state, built once by its initializer
+_WORKER: Worker | None = None  # a pool process's worker, built once by its initializer
 
 
-def _init_pool_worker(work: Work, threads: int, device: str | None) -> None:
+def _init_pool_worker(work: Work, store_root: str, threads: int, device: str | None) -> None:
     global _WORKER
     exit_with_parent()  # else a killed driver leaves its workers blocked on the task queue, weights in memory
-    _WORKER = Worker(work, threads, device)
+    _WORKER = Worker(work, ResultsStore(store_root), threads, device)
 
 
 def _run_pool_task(task: Task) -> list[Result]:
@@ -285,12 +239,11 @@ class LocalExecutor:
         return self._workers
 
     def start(self, work: Work, store: ResultsStore) -> None:
-        work = replace(work, store_root=str(store.root))
         self._pool = ProcessPoolExecutor(
             self._workers,
             mp_context=multiprocessing.get_context("spawn"),
             initializer=_init_pool_worker,
-            initargs=(work, self.threads, self.device),
+            initargs=(work, str(store.root), self.threads, self.device),
         )
 
     def run(self, tasks: Sequence[Task], deliver: Deliver) -> None:
@@ -324,7 +277,7 @@ def make_executor(
     address: str | None = None,
     device: str | None = None,
 ) -> Executor | None:
-    """The executor `i2pbench run` asked for, or None to run serially in this process (one local worker).
+    """The executor `i2pbench run` asked for, or None for one local worker (`run_grid` then runs in this process).
 
     Ray workers choose their own device (cuda where the cluster gives them a GPU), so `device` is for local ones.
     """

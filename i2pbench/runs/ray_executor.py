@@ -23,8 +23,9 @@ from types import ModuleType
 from typing import Any
 
 from ..errors import I2PBenchError
-from .executors import Deliver, Result, Task, Work, Worker
 from .store import ResultsStore
+from .tasks import Deliver, Result, Task, Work
+from .worker import Worker
 
 CPU, GPU = "cpu", "gpu"
 
@@ -55,7 +56,7 @@ class RayWorker:
         if self.worker is None:
             import ray
 
-            self.worker = Worker(ray.get(work[0]), self.threads, self.device)
+            self.worker = Worker(ray.get(work[0]), None, self.threads, self.device)  # the driver stores
         yield from self.worker.run(task)
 
 

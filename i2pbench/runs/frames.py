@@ -1,0 +1,200 @@
+"""One frame's record: the frame loaded under the protocol, run through the job's pipeline, scored.
+
+Data flows one way: dataset -> SensorFrame -> protocol -> Frame -> pipeline -> PoseEstimate -> metrics -> record.
+`load_frame` is where the protocol meets a loaded frame, for every executor: it corrupts it (under a corruption) and
+moves it, so a corrupted record differs from a clean one only by its protocol card, which its cache key holds.
+`compute_frame` is a pure function of (job, dataset, frame id, protocol), so frames can be farmed out to workers;
+the store is the only shared state, and it is written one whole file per frame.
+
+Export, then evaluate: beside each record the store keeps what the frame's solver consumed (`runs.upstream`), keyed
+by everything before the solver. A frame whose record is missing but whose upstream is stored (a new solver, a
+RANSAC setting) is re-solved from it (`resolve_frame`): no dataset file is read and no extractor, encoder or matcher
+runs, yet the record is the one a whole run gives, since the solver sees the same inputs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..components import STAGE_ORDER
+from ..correspondence import true_match_mask
+from ..corruptions import CorruptionError
+from ..data.base import Dataset
+from ..errors import I2PBenchError
+from ..metrics import pose_errors
+from ..pipeline import FrameOutcome
+from ..protocol import Protocol
+from ..types import Frame, PoseEstimate
+from .jobs import Job, labels, upstream_key
+from .store import ResultsStore
+from .upstream import StoredUpstream
+
+WHOLE, SOLVER = "pipeline", "solver"  # the two ways to compute a frame, each warmed up before its first timed frame
+
+
+@dataclass
+class Computed:
+    """A frame's record, and its upstream when that is new (to store beside the record)."""
+
+    record: dict[str, Any]
+    upstream: StoredUpstream | None = None
+
+
+def compute(
+    job: Job,
+    dataset: Dataset,
+    frame_id: str,
+    protocol: Protocol,
+    store: ResultsStore | None,
+    warm: set[str],
+    warmup: int = 1,
+    reuse_upstream: bool = True,
+) -> Computed:
+    """The frame's record: re-solved from its stored upstream when the store has it and the solver can run alone,
+    else from the whole pipeline. The first frame each way is preceded by `warmup` untimed runs (`warm` remembers)."""
+    stored, read = None, 0.0
+    if store is not None and reuse_upstream and job.pipeline.resolvable:
+        start = time.perf_counter()
+        stored = store.get_upstream(upstream_key(dataset, frame_id, job, protocol), StoredUpstream.decode)
+        read = time.perf_counter() - start
+    if stored is None:
+        if WHOLE not in warm and warmup:
+            warm_up(job, dataset, protocol, frame_id, warmup)
+        warm |= {WHOLE, SOLVER}
+        return compute_frame(job, dataset, frame_id, protocol)
+    if SOLVER not in warm:
+        for _ in range(warmup):
+            job.pipeline.resolve(stored.solver_frame(), stored.upstream)
+        warm.add(SOLVER)
+    return resolve_frame(job, dataset, frame_id, protocol, stored, read)
+
+
+def save(store: ResultsStore, key: str, record: dict[str, Any], upstream: StoredUpstream | None) -> None:
+    """Store a computed frame: its upstream first, so a record on disk always has the upstream it names."""
+    if upstream is not None:
+        store.put_upstream(record["upstream_key"], upstream.encode())
+    store.put(key, record)
+
+
+def warm_up(job: Job, dataset: Dataset, protocol: Protocol, frame_id: str, times: int) -> None:
+    """Untimed runs so one-off costs (lazy imports, allocator growth, JIT) stay out of latency figures."""
+    try:
+        frame = load_frame(dataset, frame_id, protocol)
+    except I2PBenchError:
+        return
+    for _ in range(times):
+        job.pipeline.run(frame)
+
+
+def run_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> dict[str, Any]:
+    """The record of one frame run through the whole pipeline (`compute_frame` without the upstream)."""
+    return compute_frame(job, dataset, frame_id, protocol).record
+
+
+def load_frame(dataset: Dataset, frame_id: str, protocol: Protocol) -> Frame:
+    """The registration problem of one frame under the protocol (its corruption included): the only place a run
+    turns a dataset's frame into what the stages see."""
+    return protocol.apply(dataset.load(frame_id))
+
+
+def compute_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> Computed:
+    """Load, run and score one frame; a dataset error becomes a failed record naming the file, while a failing
+    corruption stops the run (a failed row would blame the method for the benchmark's fault)."""
+    start = time.perf_counter()
+    try:
+        frame = load_frame(dataset, frame_id, protocol)
+    except CorruptionError:
+        raise
+    except I2PBenchError as exc:
+        outcome = FrameOutcome(
+            PoseEstimate.failed(str(exc)), {}, error=str(exc), failed_component=f"dataset {dataset.name!r}"
+        )
+        elapsed = time.perf_counter() - start
+        return Computed(_record(job, dataset, frame_id, protocol, outcome, None, elapsed, elapsed))
+    loaded = time.perf_counter()
+    outcome = job.pipeline.run(frame)
+    record = _record(job, dataset, frame_id, protocol, outcome, frame, loaded - start, time.perf_counter() - start)
+    upstream = StoredUpstream.of(frame, outcome)
+    record["upstream_key"] = upstream_key(dataset, frame_id, job, protocol) if upstream is not None else ""
+    return Computed(record, upstream)
+
+
+def resolve_frame(
+    job: Job, dataset: Dataset, frame_id: str, protocol: Protocol, stored: StoredUpstream, read_s: float = 0.0
+) -> Computed:
+    """Run the solver alone on a frame's stored upstream and score it; the record is a whole run's, but
+    `stages_run` says "solver", `t_load_s` is the upstream's read and the upstream stages' times are the stored ones
+    (so `t_total_s` still estimates a whole frame's latency)."""
+    start = time.perf_counter()
+    frame = stored.solver_frame()
+    outcome = job.pipeline.resolve(frame, stored.upstream)
+    ran = ",".join(outcome.timings)
+    timings = {kind: t for kind, t in stored.timings.items() if not math.isnan(t)}  # NaN: that stage did not run
+    outcome = dataclasses.replace(outcome, timings={**timings, **outcome.timings})
+    wall = read_s + time.perf_counter() - start
+    record = _record(job, dataset, frame_id, protocol, outcome, frame, read_s, wall)
+    record.update(stages_run=ran, upstream_key=upstream_key(dataset, frame_id, job, protocol))
+    return Computed(record)
+
+
+def _record(
+    job: Job,
+    dataset: Dataset,
+    frame_id: str,
+    protocol: Protocol,
+    outcome: FrameOutcome,
+    frame: Frame | None,
+    load: float,
+    wall: float,
+) -> dict[str, Any]:
+    T_pred, T_gt = outcome.estimate.T, (frame.T_gt if frame is not None else None)
+    errors = pose_errors(T_pred, T_gt) if T_gt is not None else pose_errors(None, np.eye(4))
+    record: dict[str, Any] = {
+        "dataset": dataset.name,
+        "split": dataset.split,
+        "frame_id": frame_id,
+        **labels(job),
+        **{kind: job.combination.name(kind) for kind in STAGE_ORDER},
+        "weights": job.weights,
+        "weights_trained_on": job.pipeline.weights_meta.get("trained_on", ""),
+        "protocol": protocol.identity(),
+        "corruption": protocol.corruption,  # "" when clean
+        "severity": protocol.severity,  # 0 when clean
+        "status": "ok" if T_pred is not None else "failed",
+        "error": outcome.error,
+        "failed_component": outcome.failed_component,
+        "rte_m": errors.rte_m,
+        "rre_deg": errors.rre_deg,
+        "geodesic_deg": errors.geodesic_deg,
+        "n_kp2d": outcome.n_kp2d,
+        "n_kp3d": outcome.n_kp3d,
+        "n_matches": outcome.n_matches,
+        "n_inliers": outcome.n_inliers,
+        "n_true_matches": true_matches(frame, outcome),
+        "model_size_mb": job.pipeline.model_size_mb(),
+        "threads": torch.get_num_threads(),
+        "device": job.device,
+        "t_total_s": sum(outcome.timings.values()),
+        "t_load_s": load,
+        "wall_s": wall,
+        "T_pred": (T_pred.ravel().tolist() if T_pred is not None else None),
+        "T_gt": (T_gt.ravel().tolist() if T_gt is not None else None),
+        "stages_run": ",".join(outcome.timings),  # the stages this record's computation ran (and timed)
+        "upstream_key": "",  # the stored upstream the solver consumed, once stored
+    }
+    record.update({f"t_{kind}_s": outcome.timings.get(kind, np.nan) for kind in STAGE_ORDER})
+    return record
+
+
+def true_matches(frame: Frame | None, outcome: FrameOutcome) -> float:
+    """How many of the matcher's pairs are true under T_gt (within eps_c); NaN when the matcher did not run."""
+    if frame is None or frame.T_gt is None or outcome.matched_uv is None or outcome.matched_xyz is None:
+        return float("nan")
+    return float(true_match_mask(frame, outcome.matched_uv, outcome.matched_xyz).sum())
