@@ -7,7 +7,8 @@ A learned stage that trains in batches implements, besides its per-frame `__call
 - a torch `forward` on those inputs collated into a padded batch (a leading B), with keypoint masks where the
   stage needs them: encoders `forward(inputs) -> [B x M x D]`, exchangers `forward(inputs, d2, d3, mask2d, mask3d)`,
   trainable matchers `batch_loss(inputs, Features, mask2d, mask3d) -> (loss, terms)`, the mean over the frames.
-A stage without `prepare` still trains: `PerFrame` runs it frame by frame inside the batch (slower, same result).
+A stage without `prepare` still trains: it runs frame by frame inside the batch (slower, same result), each call
+through `i2pbench.calling.call_stage` as in a run (declared view, contract check), with autograd on.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
+from .calling import StageInputs, call_stage
 from .components import Component
 from .types import Features, Frame, Keypoints2D, Keypoints3D
 
@@ -110,7 +112,7 @@ class BatchForward:
         if batches_natively(stage):
             return torch.nn.Module.__call__(stage, inputs[kind])
         frames = inputs[kind][PER_FRAME]
-        return pad_stack([stage(f, kp2d if kind == "encoder2d" else kp3d) for f, kp2d, kp3d in frames])
+        return pad_stack([call_stage(stage, f, StageInputs(kp2d, kp3d)).output for f, kp2d, kp3d in frames])
 
 
 def _unpad(features: torch.Tensor | None, mask: torch.Tensor, b: int) -> torch.Tensor | None:
@@ -119,7 +121,7 @@ def _unpad(features: torch.Tensor | None, mask: torch.Tensor, b: int) -> torch.T
 
 def _per_frame_exchange(stage, frames, d2, d3, m2, m3) -> tuple[torch.Tensor, torch.Tensor]:
     out = [
-        stage(frame, kp2d, kp3d, Features(_unpad(d2, m2, b), _unpad(d3, m3, b)))
+        call_stage(stage, frame, StageInputs(kp2d, kp3d, Features(_unpad(d2, m2, b), _unpad(d3, m3, b)))).output
         for b, (frame, kp2d, kp3d) in enumerate(frames)
     ]
     return pad_stack([o.desc2d for o in out]), pad_stack([o.desc3d for o in out])

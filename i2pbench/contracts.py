@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
 
@@ -9,9 +11,13 @@ from .errors import StageError
 from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
 
 
+class ContractError(StageError):
+    """A stage returned an output that breaks its kind's contract (rather than raising itself)."""
+
+
 def _require(ok: bool, component: str, message: str) -> None:
     if not ok:
-        raise StageError(component, message)
+        raise ContractError(component, message)
 
 
 def _shape(array: object) -> str:
@@ -101,3 +107,18 @@ def check_estimate(estimate: object, component: str) -> PoseEstimate:
             "T's rotation block is not a rotation matrix",
         )
     return estimate
+
+
+def check_output(kind: str, out: object, frame: Frame, n2d: int, n3d: int, component: str) -> Any:
+    """`out` checked as the output of a stage of `kind`, given the frame and the keypoint counts it was handed."""
+    if kind == "extractor2d":
+        return check_keypoints2d(out, frame, component)
+    if kind == "extractor3d":
+        return check_keypoints3d(out, frame, component)
+    if kind in ("encoder2d", "encoder3d"):
+        return check_descriptors(out, n2d if kind == "encoder2d" else n3d, component)
+    if kind == "exchanger":
+        return check_features(out, n2d, n3d, component)
+    if kind == "matcher":
+        return check_matches(out, n2d, n3d, component)
+    return check_estimate(out, component)  # the solver's

@@ -3,10 +3,12 @@
 The stage time limit (`i2pbench.timeout`) abandons a thread, which cannot stop a stage holding the GIL in C, nor
 survive one that segfaults or calls os._exit. With I2PBENCH_ISOLATE=process (`i2pbench run --isolate process`)
 every process that runs frames keeps one spawned child. The child receives the pipeline (pickled, once, and again
-whenever its learned weights change), then one frame at a time, and says which stage starts as it starts it. A frame
-that overruns is failed in that stage's name and the child is SIGKILLed; a child that crashes fails its frame the
+whenever its learned weights change), then one frame at a time; as each stage starts it says which, sending the
+records of the stages finished since (each stage's output crosses once), and at the end the last records and the
+failure, if any, from which the parent builds the frame's trace. A frame that overruns is failed in the running
+stage's name, keeping the records received, and the child is SIGKILLed; a child that crashes fails its frame the
 same way; the next frame starts a fresh child. The price: a second copy of the pipeline, a few seconds to start
-each child, and pickling every frame and outcome.
+each child, and pickling every frame and stage output.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import signal
 import threading
 import time
 import uuid
+from collections.abc import Sequence
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any
 
@@ -27,9 +30,10 @@ import torch
 from .errors import I2PBenchError
 from .lifeline import exit_with_parent
 from .timeout import StageTimeout
+from .trace import FrameOutcome, StageRecord
 
 if TYPE_CHECKING:
-    from .pipeline import FrameOutcome, Pipeline
+    from .pipeline import Pipeline
     from .types import Frame
 
 ENV_VAR = "I2PBENCH_ISOLATE"
@@ -63,7 +67,7 @@ class ProcessIsolation:
             try:
                 child.load(pipeline, self.token, self.timeout_s)
             except (IsolationError, StageTimeout) as exc:
-                return pipeline.failed(exc, "", {}, {})
+                return pipeline.failed(exc, "")
             return child.run(pipeline, frame, self.timeout_s)
 
 
@@ -109,16 +113,18 @@ class _Child:
         self.holds = state
 
     def run(self, pipeline: Pipeline, frame: Frame, timeout_s: float | None) -> FrameOutcome:
-        """The frame's outcome from the child; a timeout or the child's death fails it in the running stage's name."""
-        stage, timings, counts = "", {}, {}
+        """The frame's trace from the child; a timeout or the child's death fails it in the running stage's name."""
+        stage, records = "", []
         start = time.monotonic()
         try:
             self._send(("frame", frame))
             while (message := self._receive(start, timeout_s))[0] == "stage":
-                _, stage, timings, counts = message
+                _, stage, finished = message
+                records += finished
         except (IsolationError, StageTimeout) as exc:
-            return pipeline.failed(exc, stage, timings, counts)
-        return message[1]
+            return pipeline.failed(exc, stage, records)
+        _, finished, failure = message
+        return FrameOutcome.of(records + finished, failure)
 
     def _send(self, message: tuple[Any, ...]) -> None:
         try:
@@ -177,7 +183,8 @@ def _serve(conn: Connection) -> None:
             conn.send_bytes(pickle.dumps(reply))
         else:
             assert pipeline is not None, "a frame came before any pipeline"
-            _reply(conn, pipeline, pipeline.run_here(body[0], on_stage=lambda state: _report(conn, state)))
+            reporter = _Reporter(conn)
+            reporter.done(pipeline, pipeline.run_here(body[0], listener=reporter.stage))
 
 
 def _load(payload: bytes, threads: int) -> tuple[Pipeline | None, tuple[str, ...]]:
@@ -191,14 +198,32 @@ def _load(payload: bytes, threads: int) -> tuple[Pipeline | None, tuple[str, ...
     return pipeline, ("loaded",)
 
 
-def _report(conn: Connection, state: Any) -> None:
-    counts = {k: v for k, v in state.counts.items() if isinstance(v, int)}
-    conn.send_bytes(pickle.dumps(("stage", state.stage, dict(state.timings), counts)))
+class _Reporter:
+    """The child's side of one frame: each stage's record crosses to the parent once, with the next stage's start
+    or with the frame's end."""
 
+    def __init__(self, conn: Connection) -> None:
+        self.conn, self.sent = conn, 0
 
-def _reply(conn: Connection, pipeline: Pipeline, outcome: FrameOutcome) -> None:
-    try:
-        payload = pickle.dumps(("done", outcome))
-    except Exception as exc:  # a stage's output that does not pickle
-        payload = pickle.dumps(("done", pipeline.failed(exc, "", outcome.timings, {})))
-    conn.send_bytes(payload)
+    def stage(self, progress: Any) -> None:
+        """A stage starts: its kind, and the records finished since the last message (held back when they do not
+        pickle, for `done` to report: the stage starting is not at fault)."""
+        new = self._new(progress.records)
+        try:
+            payload = pickle.dumps(("stage", progress.running, new))
+        except Exception:
+            payload = pickle.dumps(("stage", progress.running, []))
+        else:
+            self.sent += len(new)
+        self.conn.send_bytes(payload)
+
+    def done(self, pipeline: Pipeline, outcome: FrameOutcome) -> None:
+        """The frame ends: the records not yet sent and the failure, or a failure saying what does not pickle."""
+        try:
+            payload = pickle.dumps(("done", self._new(outcome.records), outcome.failure))
+        except Exception as exc:  # a stage's output that does not pickle
+            payload = pickle.dumps(("done", [], pipeline.failed(exc, "").failure))
+        self.conn.send_bytes(payload)
+
+    def _new(self, records: Sequence[StageRecord]) -> list[StageRecord]:
+        return list(records[self.sent :])

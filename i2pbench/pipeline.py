@@ -1,10 +1,13 @@
 """A chosen combination of components, checked before any frame runs, and run one frame at a time.
 
-Each stage is timed on its own; an exception, a contract violation or a stage running past its time limit (see
-`i2pbench.timeout`) becomes a failed outcome that names the component, so one bad frame or plugin never sinks a run.
-That includes plugin code calling sys.exit or raising KeyboardInterrupt; only the user's own Ctrl-C stops a run
-(`i2pbench.interrupts` tells the two apart). Untrusted plugins can run in a child process instead
-(`i2pbench.isolation`), which a time limit can kill even when the stage holds the GIL.
+`Pipeline.run` is the only code that calls stages, each through `i2pbench.calling.call_stage` (declared view, timed
+call, contract check), and it returns the frame's trace (`i2pbench.trace.FrameOutcome`): each stage's checked output
+and seconds, in order, and the failure if any; runs, viz and training read that trace. An exception, a contract
+violation or a stage running past its time limit (see `i2pbench.timeout`) becomes a failed outcome that names the
+component, so one bad frame or plugin never sinks a run. That includes plugin code calling sys.exit or raising
+KeyboardInterrupt; only the user's own Ctrl-C stops a run (`i2pbench.interrupts` tells the two apart). Untrusted
+plugins can run in a child process instead (`i2pbench.isolation`), which a time limit can kill even when the stage
+holds the GIL.
 """
 
 from __future__ import annotations
@@ -12,16 +15,15 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
-import time
 import traceback
-from collections.abc import Callable, Generator, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 import torch
 
 from . import contracts, interrupts
+from .calling import StageInputs, call_stage
 from .components import (
     FEATURES2D,
     FEATURES3D,
@@ -39,13 +41,13 @@ from .errors import PluginError, StageError
 from .isolation import IsolationError, ProcessIsolation, isolation_from_env
 from .plugins import Registry
 from .timeout import StageTimeout, TimeLimiter, timeout_from_env
-from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
+from .trace import Failure, FrameOutcome, StageRecord, Upstream
+from .types import Frame, Keypoints2D, Keypoints3D
 
 NONE = "none"  # a stage set to "none" is skipped
 REQUIRED_STAGES = ("extractor2d", "extractor3d", "matcher", "solver")
 # what a solver may read to run alone on a stored upstream: no pixels, no points (they are not stored)
 RESOLVABLE = frozenset({KEYPOINTS2D, KEYPOINTS3D, MATCHES, GROUND_TRUTH})
-Stages = Generator[tuple[str, Any], None, "Upstream"]
 
 
 @dataclass(frozen=True)
@@ -88,48 +90,19 @@ class Combination:
         return hashlib.sha256(json.dumps(self.describe(), sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-@dataclass(frozen=True)
-class Upstream:
-    """What the solver consumes, as the stages before it produced it: stored, it lets another solver run alone."""
+class _Progress:
+    """A frame's records as its stages finish, and the kind last started: read by whoever gives up on the frame
+    before it ends (the time limiter's caller; an isolated child's parent, told by `listener` at each start)."""
 
-    kp2d: Keypoints2D
-    kp3d: Keypoints3D
-    matches: Matches
+    def __init__(self, listener: Callable[[_Progress], None] | None = None) -> None:
+        self.records: list[StageRecord] = []
+        self.running = ""
+        self.listener = listener
 
-
-@dataclass
-class FrameOutcome:
-    """What running a pipeline on one frame produced."""
-
-    estimate: PoseEstimate
-    timings: dict[str, float]  # seconds per stage kind that ran
-    n_kp2d: int = 0
-    n_kp3d: int = 0
-    n_matches: int = 0
-    error: str = ""
-    failed_component: str = ""
-    matched_uv: np.ndarray | None = None  # [K x 2] pixels of the matcher's pairs (None: the matcher did not run)
-    matched_xyz: np.ndarray | None = None  # [K x 3] LiDAR points of the same pairs, for the metrics' inlier ratio
-    upstream: Upstream | None = None  # the solver's inputs (None: the matcher did not finish)
-
-    @property
-    def n_inliers(self) -> int:
-        return int(len(self.estimate.inliers))
-
-
-@dataclass
-class _FrameState:
-    """How far one frame has got: the stage running, seconds per finished stage, counts; `on_stage` hears starts."""
-
-    on_stage: Callable[[_FrameState], None] | None = None
-    stage: str = ""
-    timings: dict[str, float] = field(default_factory=dict)
-    counts: dict[str, Any] = field(default_factory=lambda: {"n_kp2d": 0, "n_kp3d": 0, "n_matches": 0})
-
-    def enter(self, kind: str) -> None:
-        self.stage = kind
-        if self.on_stage is not None:
-            self.on_stage(self)
+    def start(self, kind: str) -> None:
+        self.running = kind
+        if self.listener is not None:
+            self.listener(self)
 
 
 class Pipeline:
@@ -145,8 +118,8 @@ class Pipeline:
         """`timeout_s`: seconds one frame may take; None disables; "env" reads I2PBENCH_STAGE_TIMEOUT_S.
 
         `isolate`: "thread" (stages run in this process) or "process" (in a child process); "env" reads
-        I2PBENCH_ISOLATE. Only `build` reads it by default: a pipeline of wrapped stages whose side effects must
-        stay in this process (a report's recording trace) is built directly.
+        I2PBENCH_ISOLATE. Only `build` reads it by default: a pipeline built directly from instances (whose side
+        effects a caller may want to see in this process) runs them here unless told otherwise.
         """
         self.combination = combination
         self.stages = {k: stages[k] for k in STAGE_ORDER if k in stages}
@@ -218,118 +191,75 @@ class Pipeline:
         self,
         frame: Frame,
         limiter: TimeLimiter | None = None,
-        on_stage: Callable[[_FrameState], None] | None = None,
+        listener: Callable[[_Progress], None] | None = None,
         upstream: Upstream | None = None,
     ) -> FrameOutcome:
-        """Run the stages in this process (under `limiter` if given); `on_stage` hears each stage as it starts; from
-        the solver on when given a stored `upstream`."""
-        state = _FrameState(on_stage)
-        work = functools.partial(self._run_stages, frame, state, upstream)
+        """Run the stages in this process (under `limiter` if given), as a benchmark does (under
+        torch.inference_mode); `listener` hears each stage as it starts; from the solver on when given a stored
+        `upstream`."""
+        progress = _Progress(listener)
+        work = functools.partial(self._inference, frame, progress, upstream)
         mark = interrupts.watch()
         try:
-            estimate = work() if limiter is None else limiter.call(work)
-            return FrameOutcome(estimate, state.timings, **state.counts, error="" if estimate.ok else estimate.message)
+            work() if limiter is None else limiter.call(work)
+            return FrameOutcome.of(progress.records)
         except BaseException as exc:  # SystemExit, KeyboardInterrupt... from a plugin are its failure, not the run's
             if interrupts.stops_run(exc, mark):  # the user's Ctrl-C: stop, keeping the frames finished
                 if isinstance(exc, KeyboardInterrupt):
                     raise
                 raise KeyboardInterrupt from exc
-            return self.failed(exc, state.stage, state.timings, state.counts)
+            return self.failed(exc, progress.running, progress.records)
 
-    def failed(
-        self, exc: BaseException, kind: str, timings: Mapping[str, float], counts: Mapping[str, Any]
-    ) -> FrameOutcome:
-        """The failed outcome of a frame that raised `exc` while stage `kind` ran, naming its component."""
+    def failed(self, exc: BaseException, kind: str, records: Sequence[StageRecord] = ()) -> FrameOutcome:
+        """The failed outcome of a frame that raised `exc` while stage `kind` ran, after `records`; it names the
+        component at fault."""
         if isinstance(exc, StageError):
             component, message = exc.component, str(exc)
         else:
             component = self.stages[kind].label if kind in self.stages else "pipeline"
             plain = isinstance(exc, StageTimeout | IsolationError)
             message = f"{component}: {exc}" if plain else f"{component}: {_describe(exc)}"
-        return FrameOutcome(
-            PoseEstimate.failed(message), dict(timings), **dict(counts), error=message, failed_component=component
-        )
+        return FrameOutcome.of(tuple(records), Failure(component, kind, message))
 
-    def _run_stages(self, frame: Frame, state: _FrameState, upstream: Upstream | None = None) -> PoseEstimate:
-        """Run the stages, filling `state.counts` with keypoint and match counts, the matched pairs' coordinates and
-        the solver's inputs."""
-        kept: dict[str, Any] = {}
-        counts = state.counts
+    def _inference(self, frame: Frame, progress: _Progress, upstream: Upstream | None) -> None:
         with torch.inference_mode():
-            for kind, result in self._stages(frame, state, upstream):
-                _count(kind, result, counts)
-                kept[kind] = result
-                if kind == "matcher":
-                    counts["matched_uv"] = kept["extractor2d"].uv[result.index2d]
-                    counts["matched_xyz"] = kept["extractor3d"].xyz[result.index3d]
-                    counts["upstream"] = Upstream(kept["extractor2d"], kept["extractor3d"], result)
-        return result
-
-    def _stages(self, frame: Frame, state: _FrameState, upstream: Upstream | None = None):
-        """Yield (kind, output) for each stage in order, timing each one and checking its output; the stages before
-        the solver replay `upstream` when given one."""
-        hidden = frame.without_ground_truth()
-
-        def call(kind: str, *args: Any) -> Any:
-            component = self.stages[kind]
-            state.enter(kind)
-            view = frame if GROUND_TRUTH in component.consumes else hidden
-            out, state.timings[kind] = _timed(component, view, *args)
-            return out
-
-        up = yield from (self._upstream(call, frame) if upstream is None else self._replay(upstream))
-        solver = self.stages["solver"].label
-        yield "solver", contracts.check_estimate(call("solver", up.kp2d, up.kp3d, up.matches), solver)
-
-    def _upstream(self, call: Callable[..., Any], frame: Frame) -> Stages:
-        """Run the stages before the solver, yielding each output; returns what the solver consumes."""
-        s = self.stages
-        kp2d = contracts.check_keypoints2d(call("extractor2d"), frame, s["extractor2d"].label)
-        yield "extractor2d", kp2d
-        kp3d = contracts.check_keypoints3d(call("extractor3d"), frame, s["extractor3d"].label)
-        yield "extractor3d", kp3d
-        features = self._features(call, kp2d, kp3d)
-        matches = contracts.check_matches(
-            call("matcher", kp2d, kp3d, features), len(kp2d), len(kp3d), s["matcher"].label
-        )
-        yield "matcher", matches
-        return Upstream(kp2d, kp3d, matches)
-
-    def _replay(self, upstream: Upstream) -> Stages:
-        """Yield a stored upstream's outputs as if its stages had run (untimed), its matches checked again."""
-        kp2d, kp3d = upstream.kp2d, upstream.kp3d
-        contracts.check_matches(upstream.matches, len(kp2d), len(kp3d), self.stages["matcher"].label)
-        yield "extractor2d", kp2d
-        yield "extractor3d", kp3d
-        yield "matcher", upstream.matches
-        return upstream
-
-    def _features(self, call: Any, kp2d: Keypoints2D, kp3d: Keypoints3D) -> Features:
-        s = self.stages
-        d2 = call("encoder2d", kp2d) if "encoder2d" in s else None
-        d3 = call("encoder3d", kp3d) if "encoder3d" in s else None
-        d2 = contracts.check_descriptors(d2, len(kp2d), s["encoder2d"].label) if "encoder2d" in s else None
-        d3 = contracts.check_descriptors(d3, len(kp3d), s["encoder3d"].label) if "encoder3d" in s else None
-        features = Features(d2, d3)
-        if "exchanger" in s:
-            features = contracts.check_features(
-                call("exchanger", kp2d, kp3d, features), len(kp2d), len(kp3d), s["exchanger"].label
-            )
-        return features
+            _walk(self.stages, frame, progress, upstream)
 
 
-def _timed(component: Component, *args: Any) -> tuple[Any, float]:
-    """(output, seconds) of one stage, timed around the call only."""
-    start = time.perf_counter()
-    out = component(*args)
-    _synchronize()
-    return out, time.perf_counter() - start
+def _walk(
+    stages: Mapping[str, Component],
+    frame: Frame,
+    progress: _Progress,
+    upstream: Upstream | None = None,
+    until: str = "solver",
+) -> None:
+    """Call the stages in data-flow order up to `until`, each through `call_stage`, adding each record to
+    `progress`; raises what a stage raises. Given a stored `upstream`, it stands in for the stages before the solver."""
+    inputs = StageInputs() if upstream is None else _replay(stages, upstream, progress)
+    for kind in STAGE_ORDER[: STAGE_ORDER.index(until) + 1]:
+        if kind in stages and (upstream is None or kind == "solver"):
+            progress.start(kind)
+            record = call_stage(stages[kind], frame, inputs)
+            progress.records.append(record)
+            inputs = inputs.after(record)
 
 
-def _count(kind: str, result: Any, counts: dict[str, Any]) -> None:
-    key = {"extractor2d": "n_kp2d", "extractor3d": "n_kp3d", "matcher": "n_matches"}.get(kind)
-    if key:
-        counts[key] = len(result)
+def extract(stages: Mapping[str, Component], frame: Frame) -> tuple[Keypoints2D, Keypoints3D]:
+    """The extractors' keypoints of `frame`, through the path a run takes (declared view, contract checks) but with
+    autograd as the caller has it and failures raised (a StageError naming the component), for training samples."""
+    progress = _Progress()
+    _walk(stages, frame, progress, until="extractor3d")
+    kp2d, kp3d = (r.output for r in progress.records)
+    return kp2d, kp3d
+
+
+def _replay(stages: Mapping[str, Component], upstream: Upstream, progress: _Progress) -> StageInputs:
+    """A stored upstream's outputs recorded as if its stages had run (untimed), its matches checked again."""
+    kp2d, kp3d, matches = upstream.kp2d, upstream.kp3d, upstream.matches
+    contracts.check_matches(matches, len(kp2d), len(kp3d), stages["matcher"].label)
+    for kind, out in (("extractor2d", kp2d), ("extractor3d", kp3d), ("matcher", matches)):
+        progress.records.append(StageRecord(kind, stages[kind].label, out, None))
+    return StageInputs(kp2d, kp3d, matches=matches)
 
 
 def _describe(exc: BaseException) -> str:
@@ -338,11 +268,6 @@ def _describe(exc: BaseException) -> str:
     if isinstance(exc, SystemExit):  # its str() is the bare exit code, or nothing
         return f"called sys.exit({exc.code!r}){loc}"
     return f"{type(exc).__name__}: {exc}{loc}" if str(exc) else f"{type(exc).__name__}{loc}"
-
-
-def _synchronize() -> None:
-    if torch.cuda.is_available() and torch.cuda.is_initialized():
-        torch.cuda.synchronize()
 
 
 # Which stage kind normally provides each value, for error messages.

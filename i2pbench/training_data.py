@@ -23,6 +23,7 @@ from .augment import augmenter
 from .batching import LEARNED_KINDS, collate, length_mask, prepare_stage
 from .components import Component
 from .data.base import Dataset
+from .pipeline import extract
 from .protocol import Protocol
 from .types import Frame, Keypoints2D, Keypoints3D
 
@@ -117,12 +118,13 @@ class TrainingSamples(torch.utils.data.Dataset):
         return Protocol(seed=self.seed * 1_000_003 + index).apply(self.dataset.load(frame_id))
 
     def keypoints(self, frame: Frame) -> tuple[Keypoints2D, Keypoints3D]:
-        """extractor outputs depend on the image and the scan order only, never on the transform: cached per frame."""
+        """extractor outputs depend on the image and the scan order only, never on the transform: cached per frame.
+        They come through the pipeline's path (`pipeline.extract`), contract checks included."""
         entry = self.keypoint_cache.get(frame.frame_id)
         if entry is None:
-            hidden = frame.without_ground_truth()
-            uv = np.asarray(self.stages["extractor2d"](hidden).uv, np.float32)
-            index = np.asarray(self.stages["extractor3d"](hidden).index, np.int64)
+            kp2d, kp3d = extract(self.stages, frame)
+            uv = np.asarray(kp2d.uv, np.float32)
+            index = np.asarray(kp3d.index, np.int64)
             entry = {"uv": torch.from_numpy(uv), "index3d": torch.from_numpy(index)}
             self.keypoint_cache.put(frame.frame_id, entry)
         return Keypoints2D(entry["uv"].numpy()), Keypoints3D.from_index(frame, entry["index3d"].numpy())

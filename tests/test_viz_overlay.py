@@ -15,7 +15,6 @@ from i2pbench.geometry import in_image, project
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import default_registry
 from i2pbench.report import draw, overlay
-from i2pbench.report.trace import trace
 from i2pbench.testing.frames import kitti_frame, synthetic_frame, with_image
 
 KITTI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_odometry"
@@ -87,15 +86,15 @@ def test_resolve_frame_takes_ids_and_indices():
     assert resolve_frame(ids, "7") == "7"  # an id that looks like a number stays an id
 
 
-def test_trace_keeps_each_stage_output_and_the_same_estimate_as_run():
+def test_the_run_s_trace_holds_what_the_viz_panels_draw():
     registry = default_registry()
     frame = synthetic_frame(seed=1)
     names = {"extractor2d": "lsd", "extractor3d": "depth+reflectance", "matcher": "oracle", "solver": "epnp-ransac"}
-    pipeline = Pipeline.build(registry, Combination(names), timeout_s=None)
-    result = trace(pipeline, frame)
-    assert len(result.kp2d) == result.outcome.n_kp2d > 0 and len(result.kp3d) == result.outcome.n_kp3d > 0
-    assert len(result.matches) == result.outcome.n_matches
-    np.testing.assert_allclose(result.outcome.estimate.T, pipeline.run(frame).estimate.T)
+    outcome = Pipeline.build(registry, Combination(names), timeout_s=None).run(frame)
+    assert len(outcome.kp2d) == outcome.n_kp2d > 0 and len(outcome.kp3d) == outcome.n_kp3d > 0
+    assert len(outcome.matches) == outcome.n_matches > 0
+    np.testing.assert_array_equal(outcome.matched_uv, outcome.kp2d.uv[outcome.matches.index2d])
+    assert outcome.estimate is outcome.records[-1].output  # the solver's own estimate, not a recomputation
 
 
 def test_a_failed_pose_leaves_the_predicted_panel_as_the_bare_image():

@@ -57,7 +57,6 @@ def run(args: argparse.Namespace) -> int:
     from ..plugins import default_registry
     from ..protocol import Protocol
     from ..report import overlay
-    from ..report.trace import trace
     from ..runs.environment import fix_threads
     from ..runs.runner import prepare
 
@@ -72,14 +71,14 @@ def run(args: argparse.Namespace) -> int:
     frame_id = resolve_frame(dataset.frame_ids(), args.frame)
     job = prepare(registry, combinations, args.weights, device, dataset.name)[0]
     frame = Protocol(seed=args.seed).apply(dataset.load(frame_id))
-    result = trace(job.pipeline, frame)
+    outcome = job.pipeline.run(frame)
     out = args.out or f"viz/{dataset.name}-{dataset.split}-{frame_id.replace('/', '-')}.png"
-    estimate = result.outcome.estimate
+    estimate = outcome.estimate
     summary = overlay.errors_text(estimate.T, frame.T_gt) if estimate.ok else f"failed: {estimate.message}"
     print(f"{job.label} on {dataset.name}/{dataset.split} {frame_id}: {summary}", file=sys.stderr)
     if estimate.ok and pose_errors(estimate.T, frame.T_gt).rre_deg > 180:
         print(f"i2pbench: note: {overlay.RRE_NOTE}", file=sys.stderr)
-    _write(out, overlay.compose(_panels(frame, result, job.label, args)))
+    _write(out, overlay.compose(_panels(frame, outcome, job.label, args)))
     print(f"written: {out}", file=sys.stderr)
     return 0
 
@@ -95,15 +94,16 @@ def _write(out: str, image: np.ndarray) -> None:
         raise I2PBenchError(f"--out {out}: could not write the PNG ({exc.strerror or exc})") from None
 
 
-def _panels(frame, result, label: str, args: argparse.Namespace) -> list:
-    """The three pose panels, then the edge and match panels asked for (skipped when their stage did not run)."""
+def _panels(frame, outcome, label: str, args: argparse.Namespace) -> list:
+    """The three pose panels, then the edge and match panels asked for, from the run's trace (skipped when their
+    stage did not finish)."""
     from ..report import overlay
 
-    estimate = result.outcome.estimate
+    estimate = outcome.estimate
     panels = overlay.pose_panels(frame, estimate.T, failure=estimate.message, radius=args.radius)
     panels[0][0].insert(0, f"{frame.dataset} {frame.frame_id}: {label}")
-    if args.edges and result.kp2d is not None and result.kp3d is not None:
-        panels.append(overlay.edges_panel(frame, result.kp2d, result.kp3d))
-    if args.matches and result.matches is not None:
-        panels.append(overlay.matches_panel(frame, result.kp2d, result.kp3d, result.matches, estimate.inliers))
+    if args.edges and outcome.kp2d is not None and outcome.kp3d is not None:
+        panels.append(overlay.edges_panel(frame, outcome.kp2d, outcome.kp3d))
+    if args.matches and outcome.matches is not None:
+        panels.append(overlay.matches_panel(frame, outcome.kp2d, outcome.kp3d, outcome.matches, estimate.inliers))
     return panels

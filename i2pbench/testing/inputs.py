@@ -1,34 +1,23 @@
-"""What a stage receives besides the frame, made from ground truth, and how the kit calls a stage of each kind.
+"""What a stage receives besides the frame, made from ground truth.
 
 Keypoints are true correspondences (3D points in view and their projections, plus a few unmatched pixels), so a
-matcher or solver sees a solvable problem; descriptors are seeded random unit vectors. Values a component does not
-declare in `consumes` are withheld exactly as the pipeline withholds them: T_gt is hidden, and a matcher that does not
-declare features gets `Features(None, None)`.
+matcher or solver sees a solvable problem; descriptors are seeded random unit vectors. The kit hands them to a stage
+through `i2pbench.calling.call_stage`, the pipeline's own call, so values a component does not declare in `consumes`
+are withheld exactly as in a run: T_gt is hidden, and a matcher that does not declare features gets
+`Features(None, None)`.
 """
 
 from __future__ import annotations
 
-import dataclasses
-from typing import Any
-
 import numpy as np
 import torch
 
-from ..components import FEATURES2D, FEATURES3D, GROUND_TRUTH, Component
+from ..calling import StageInputs
+from ..components import Component
 from ..geometry import in_image, project
 from ..types import Features, Frame, Keypoints2D, Keypoints3D, Matches
 
 DEFAULT_DIM = 32  # descriptor width when the component's conf has no `descriptor_dim`
-
-
-@dataclasses.dataclass(frozen=True)
-class StageInputs:
-    """The upstream values a stage may be given, all consistent with one frame."""
-
-    kp2d: Keypoints2D
-    kp3d: Keypoints3D
-    features: Features
-    matches: Matches
 
 
 def descriptor_dim(component: Component) -> int:
@@ -76,29 +65,3 @@ def without_2d(inputs: StageInputs) -> StageInputs:
     desc2d = inputs.features.desc2d
     features = Features(None if desc2d is None else desc2d[:0], inputs.features.desc3d)
     return StageInputs(Keypoints2D(inputs.kp2d.uv[:0]), inputs.kp3d, features, Matches.empty())
-
-
-def declared_view(component: Component, frame: Frame, inputs: StageInputs) -> tuple[Frame, Features]:
-    """The frame and features the pipeline would hand this component, given what it declares it consumes."""
-    view = frame if GROUND_TRUTH in component.consumes else frame.without_ground_truth()
-    f = inputs.features
-    features = Features(
-        f.desc2d if FEATURES2D in component.consumes else None, f.desc3d if FEATURES3D in component.consumes else None
-    )
-    return view, features
-
-
-def call_stage(component: Component, frame: Frame, inputs: StageInputs) -> Any:
-    """Call a component as the pipeline calls its kind, under torch.inference_mode as the pipeline does."""
-    view, features = declared_view(component, frame, inputs)
-    args: dict[str, tuple[Any, ...]] = {
-        "extractor2d": (),
-        "extractor3d": (),
-        "encoder2d": (inputs.kp2d,),
-        "encoder3d": (inputs.kp3d,),
-        "exchanger": (inputs.kp2d, inputs.kp3d, features),
-        "matcher": (inputs.kp2d, inputs.kp3d, features),
-        "solver": (inputs.kp2d, inputs.kp3d, inputs.matches),
-    }
-    with torch.inference_mode():
-        return component(view, *args[component.kind])

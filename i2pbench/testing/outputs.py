@@ -1,7 +1,8 @@
-"""Judging a stage's output: the pipeline's contract checks plus the dtypes `i2pbench.types` documents, and equality.
+"""Judging a stage's output beyond the contract `call_stage` checks (the pipeline's: types, shapes, ranges, finite
+values): the dtypes `i2pbench.types` documents, descriptors a stage declares it provides, and equality.
 
-The pipeline itself checks shapes and finiteness only (a wrong dtype rarely breaks a run, but it silently costs
-memory or precision downstream), so dtypes are the kit's addition.
+A wrong dtype rarely breaks a run, but it silently costs memory or precision downstream, so dtypes are the kit's
+addition rather than the pipeline's.
 """
 
 from __future__ import annotations
@@ -12,7 +13,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from .. import contracts
 from ..components import FEATURES2D, FEATURES3D, Component
 from ..errors import StageError
 from ..types import Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
@@ -32,34 +32,24 @@ DTYPES: dict[tuple[type, str], Any] = {
 }
 
 
-def validate(component: Component, out: Any, frame: Frame, inputs: StageInputs) -> None:
-    """Raise StageError naming the first way `out` breaks the contract of the component's kind."""
+def check_extras(component: Component, out: Any, inputs: StageInputs) -> None:
+    """Raise StageError naming the first way a contract-checked `out` falls short of what the kit also asks."""
     label, kind = component.label, component.kind
-    n2d, n3d = len(inputs.kp2d), len(inputs.kp3d)
-    if kind == "extractor2d":
-        contracts.check_keypoints2d(out, frame, label)
-    elif kind == "extractor3d":
-        contracts.check_keypoints3d(out, frame, label)
-    elif kind in ("encoder2d", "encoder3d"):
-        _check_descriptors(component, out, n2d if kind == "encoder2d" else n3d)
+    if kind in ("encoder2d", "encoder3d"):
+        _check_descriptors(component, out)
     elif kind == "exchanger":
-        contracts.check_features(out, n2d, n3d, label)
-        _check_descriptors(component, out.desc2d, n2d, FEATURES2D)
-        _check_descriptors(component, out.desc3d, n3d, FEATURES3D)
-    elif kind == "matcher":
-        contracts.check_matches(out, n2d, n3d, label)
-    elif kind == "solver":
-        contracts.check_estimate(out, label)
-        if out.ok and len(out.inliers) and (out.inliers.min() < 0 or out.inliers.max() >= len(inputs.matches)):
+        _check_descriptors(component, out.desc2d, FEATURES2D)
+        _check_descriptors(component, out.desc3d, FEATURES3D)
+    elif kind == "solver" and out.ok and len(out.inliers):
+        if out.inliers.min() < 0 or out.inliers.max() >= len(inputs.matches):
             raise StageError(label, f"inliers index out of range for {len(inputs.matches)} matches")
     check_dtypes(out, label)
 
 
-def _check_descriptors(component: Component, desc: Any, count: int, value: str | None = None) -> None:
+def _check_descriptors(component: Component, desc: Any, value: str | None = None) -> None:
     value = value or (FEATURES2D if component.kind == "encoder2d" else FEATURES3D)
     if desc is None and value in component.provides:
         raise StageError(component.label, f"returned no descriptors although it declares it provides {value}")
-    contracts.check_descriptors(desc, count, component.label)
     if desc is not None and desc.dtype != torch.float32:
         raise StageError(component.label, f"descriptors must be float32, got {desc.dtype}")
 
