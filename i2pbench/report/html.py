@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from .. import leaderboard as lb
-from . import curves, overlay
+from . import curves, overlay, robustness
 from .examples import Example, render_examples
 from .rundir import RunDir, load_run
 
@@ -86,15 +86,22 @@ def write_report(
     run = load_run(run_root)
     board = lb.build(run.records, run.protocol)
     examples, notes = render_examples(run, board, overlays, data_root, quiet)
-    notes = run.notes + notes
+    robust = robustness.section(run, data_root)
+    notes = run.notes + notes + (robust.notes if robust else [])
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    tmp.write_text(render(run, board, examples, notes), encoding="utf-8")
+    tmp.write_text(render(run, board, examples, notes, robust), encoding="utf-8")
     os.replace(tmp, out)
     return notes
 
 
-def render(run: RunDir, board: pd.DataFrame, examples: list[Example], notes: list[str]) -> str:
+def render(
+    run: RunDir,
+    board: pd.DataFrame,
+    examples: list[Example],
+    notes: list[str],
+    robust: robustness.Section | None = None,
+) -> str:
     groups = curves.rows(run.records, list(zip(board["combination"], board["weights"], strict=True)))
     sections = [
         _header(run, notes),
@@ -115,6 +122,7 @@ def render(run: RunDir, board: pd.DataFrame, examples: list[Example], notes: lis
             _png(curves.latency_bars(board), "per-stage latency"),
         ),
         _section("Best and worst frames", _explain_examples(), "".join(_figure(e) for e in examples)),
+        _robustness(robust) if robust else "",
     ]
     title = f"i2pbench report: {_dataset_name(run)}"
     return (
@@ -124,9 +132,9 @@ def render(run: RunDir, board: pd.DataFrame, examples: list[Example], notes: lis
     )
 
 
-def table(board: pd.DataFrame) -> str:
-    """The leaderboard as a sortable HTML table, best Acc. first."""
-    columns = [c for c in COLUMNS if c in board]
+def table(board: pd.DataFrame, columns: list[str] | None = None) -> str:
+    """The leaderboard (or `columns` of another table) as a sortable HTML table, in the table's order."""
+    columns = [c for c in (columns or COLUMNS) if c in board]
     head = "".join(f"<th>{escape(c)}</th>" for c in columns)
     body = "".join(
         "<tr>" + "".join(_cell(row[c], row.get(SORT_BY.get(c, c))) for c in columns) + "</tr>\n"
@@ -194,6 +202,17 @@ def _explain_board(run: RunDir) -> str:
         f"all frames; RTE and RRE are mean ± std over frames with RTE < {p.filter_rte_m:g} m and "
         f"RRE < {p.filter_rre_deg:g}°. Latency is per frame, in milliseconds."
     )
+
+
+def _robustness(robust: robustness.Section) -> str:
+    """Three sections: the robustness summary, Acc. against severity, and one overlay per corruption."""
+    columns = [c for c in robust.summary.columns if c not in ("dataset", "split")]
+    curves_img = _img(robust.curves_png, "image/png", "Acc. against corruption severity")
+    return "".join([
+        _section("Robustness", robustness.explain(robust), table(robust.summary, columns)),
+        _section("Acc. against severity", robustness.EXPLAIN_CURVES, curves_img),
+        _section("What each corruption does", robustness.EXPLAIN_OVERLAYS, "".join(map(_figure, robust.overlays))),
+    ])  # fmt: skip
 
 
 def _explain_examples() -> str:
