@@ -96,6 +96,9 @@ def test_following_the_tutorial_installs_lists_runs_checks_and_removes_the_plugi
     row = board.set_index("combination").loc["harris > curvature > oracle > epnp-ransac"]
     assert (row["extractor2d"], row["extractor3d"], row["frames"]) == ("harris", "curvature", 2)
     assert "extractor2d 'harris' conforms" in output_of("check_component")
+    trace = output_of("outcome.records").splitlines()
+    assert [line.split(" ")[0] for line in trace[:-1]] == ["extractor2d", "extractor3d", "matcher", "solver"]
+    assert trace[0].startswith("extractor2d extractor2d 'harris' ") and trace[-1].endswith(" None")
     assert re.search(r"\b5 passed\b", output_of("pytest"))
     assert "example" not in output_of("I2PBENCH_BLOCK_PLUGINS=example") and "classic" in listing
     assert "Successfully uninstalled i2pbench-example" in output_of("uninstall")
