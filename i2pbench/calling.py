@@ -34,19 +34,18 @@ class StageInputs:
     def after(self, record: StageRecord) -> StageInputs:
         """These inputs with a finished stage's output put where the stages after it read it."""
         out, f = record.output, self.features
-        field = {
-            "extractor2d": {"kp2d": out},
-            "extractor3d": {"kp3d": out},
-            "encoder2d": {"features": Features(out, f.desc3d)},
-            "encoder3d": {"features": Features(f.desc2d, out)},
-            "exchanger": {"features": out},
-            "matcher": {"matches": out},
-        }.get(record.kind, {})
-        return dataclasses.replace(self, **field)
+        if record.kind == "encoder2d":
+            return dataclasses.replace(self, features=Features(out, f.desc3d))
+        if record.kind == "encoder3d":
+            return dataclasses.replace(self, features=Features(f.desc2d, out))
+        field = _FEEDS.get(record.kind)  # None for the solver: nothing reads its output
+        return self if field is None else dataclasses.replace(self, **{field: out})
 
+
+_FEEDS = {"extractor2d": "kp2d", "extractor3d": "kp3d", "exchanger": "features", "matcher": "matches"}
 
 # the arguments after the frame that a stage of each kind is called with, from its inputs and declared features
-ARGUMENTS: dict[str, Callable[[StageInputs, Features], tuple[Any, ...]]] = {
+_ARGUMENTS: dict[str, Callable[[StageInputs, Features], tuple[Any, ...]]] = {
     "extractor2d": lambda i, f: (),
     "extractor3d": lambda i, f: (),
     "encoder2d": lambda i, f: (i.kp2d,),
@@ -71,7 +70,7 @@ def call_stage(component: Component, frame: Frame, inputs: StageInputs) -> Stage
     """Call `component` as a stage of its kind: the declared view, then the call (timed alone), then the contract
     check of its output (a `contracts.ContractError` naming it)."""
     view, features = declared_view(component, frame, inputs.features)
-    args = ARGUMENTS[component.kind](inputs, features)
+    args = _ARGUMENTS[component.kind](inputs, features)
     start = time.perf_counter()
     out = component(view, *args)
     _synchronize()

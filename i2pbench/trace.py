@@ -85,10 +85,9 @@ class FrameOutcome:
         return self.output("extractor3d")
 
     @property
-    def features(self) -> Features | None:
-        """The descriptors the matcher was handed (the exchanger's, else the encoders'); None before the matcher."""
-        if self.matches is None:
-            return None
+    def features(self) -> Features:
+        """The descriptors the encoders produced, as the exchanger left them; a side is None where no encoder ran
+        (or finished). A matcher sees only the sides it declares (`i2pbench.calling.declared_view`)."""
         exchanged = self.output("exchanger")
         return exchanged if exchanged is not None else Features(self.output("encoder2d"), self.output("encoder3d"))
 
