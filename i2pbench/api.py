@@ -1,4 +1,4 @@
-"""What plugin authors import: `from i2pbench.api import hookimpl, Extractor2D, ...`.
+"""What plugin authors import: `from i2pbench.api import hookimpl, Extractor2D, ..., Method`.
 
 `LearnedComponent` is imported on first use (it subclasses torch.nn.Module), so a plugin of classic stages imports
 this module without importing torch.
@@ -28,6 +28,7 @@ from .corruptions import Corruption
 from .data.base import Dataset
 from .errors import DataError, StageError
 from .hookspecs import hookimpl
+from .methods import Method, MethodPreset, Row, Size
 from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
 
 if TYPE_CHECKING:
@@ -58,9 +59,13 @@ __all__ = [
     "LearnedComponent",
     "Matcher",
     "Matches",
+    "Method",
+    "MethodPreset",
     "PoseEstimate",
     "PoseSolver",
+    "Row",
     "SensorFrame",
+    "Size",
     "StageError",
     "hookimpl",
 ]

@@ -62,17 +62,19 @@ def expand(
 ) -> list[Combination]:
     """The product of the per-stage choices, applied over each base combination (duplicates dropped).
 
-    A base may carry "confs" ({kind: {key: value}}): config a preset pins, e.g. a smaller width its weights used,
-    and a "variant" name for them; a base conf applies only while its stage keeps the base's component, and `confs`
-    overrides it. With a registry,
-    stages taken from the base whose outputs no later stage consumes are dropped (`--matcher oracle` over the
-    default pipeline needs no encoders); stages the user named are always kept.
+    A base may carry "confs" ({kind: {key: value}}): config a preset pins, e.g. the size a method's weights were
+    trained at (i2pbench.methods), and a "variant" label for them; a base conf applies only while its stage keeps
+    the base's component, and `confs` overrides it. With a registry, names are canonical (an alias gives the same
+    row as its name), and stages taken from the base whose outputs no later stage consumes are dropped
+    (`--matcher oracle` over the default pipeline needs no encoders); stages the user named are always kept.
     """
     kinds = [k for k in STAGE_ORDER if choices.get(k)]
+    choices = {k: [_canonical(registry, k, name) for name in choices[k]] for k in kinds}
     seen, out = set(), []
     for base in bases:
         base = dict(base)
         base_confs, variant = base.pop("confs", {}), base.pop("variant", "")
+        base = {k: _canonical(registry, k, name) for k, name in base.items()}
         for values in itertools.product(*(choices[k] for k in kinds)):
             names = {**base, **dict(zip(kinds, values, strict=True))}
             if registry is not None:
@@ -85,6 +87,11 @@ def expand(
                 seen.add(combination.key())
                 out.append(combination)
     return out
+
+
+def _canonical(registry: Registry | None, kind: str, name: str) -> str:
+    """The registered name behind an alias (unchanged without a registry, or for a kind it does not know)."""
+    return name if registry is None or kind not in STAGE_ORDER else registry.canonical(kind, name)
 
 
 def prune_unconsumed(registry: Registry, names: Mapping[str, str], keep: set[str]) -> dict[str, str]:
@@ -110,7 +117,8 @@ def _merge_confs(
     registry: Registry | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Pinned confs apply to stages that kept the base's component; a non-learned stage's pins (e.g. an extractor's
-    keypoint cap) serve the base's learned stages, so they apply only while one of those is kept too."""
+    keypoint cap a method's size sets) serve the base's learned stages, so they apply only while one of those is kept
+    too."""
     kept = {k for k in base_confs if names.get(k, NONE) == base.get(k) != NONE}
     if registry is not None:
         learned = {k for k in kept if registry.component(k, names[k]).learned}

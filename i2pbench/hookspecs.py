@@ -5,7 +5,8 @@ group `i2pbench`. Built-in stages are registered this way too.
 
 Components and datasets are registered as a class, `register(cls)`, or by import path and name,
 `register("package.module:Class", name="x")`: then the class is imported only when a run uses it, so a plugin whose
-modules import torch (or any heavy library) costs `i2pbench plugins` and other runs nothing.
+modules import torch (or any heavy library) costs `i2pbench plugins` and other runs nothing. Either form takes
+`aliases=("other-name",)`: more names users may type for the same component (rows and cache keys carry `name`).
 """
 
 from __future__ import annotations
@@ -75,6 +76,13 @@ def register_weights(register: Register) -> None:
 
 
 @hookspec
+def register_methods(register: Register) -> None:
+    """Register learned methods: `register(i2pbench.methods.Method(...))`, one object naming a method's stage
+    components, its sizes (named stage configs), its presets (rows built from a size, stages swapped) and its shipped
+    checkpoints. Its presets and weights are registered with it: no `register_presets`/`register_weights` needed."""
+
+
+@hookspec
 def register_corruptions(register: Register) -> None:
     """Register `i2pbench.api.Corruption` subclasses (sensor or calibration faults run with `--corruption NAME`):
     `register(cls)` or by path. A corruption changes what the stages see, never the ground truth."""
@@ -91,6 +99,7 @@ HOOK_NAMES: tuple[str, ...] = (
     "register_pose_solvers",
     "register_presets",
     "register_weights",
+    "register_methods",
     "register_corruptions",
 )
 

@@ -12,8 +12,12 @@ so a clash with one of them skips the newcomer and keeps the built-in; between t
 
 A component or dataset may be registered by import path, `register("package.module:Class", name="x")`: the registry
 keeps its name and imports the class on first use, so listing plugins, or running other stages, never imports what
-it needs (EdgeRegNet's torch). A path that cannot be imported is an error when the component is used (`strict=True`
-imports every path while registering).
+it needs (a learned stage's torch). A path that cannot be imported is an error when the component is used
+(`strict=True` imports every path while registering). `register(..., aliases=("y",))` lets users type another name
+for the same component; rows, labels and cache keys always carry the registered (canonical) name.
+
+A method (`register_methods`, i2pbench.methods.Method) adds its presets and shipped weights to the same tables,
+attributed to its plugin, and is kept whole for `i2pbench plugins`.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ import importlib
 import importlib.metadata
 import os
 import sys
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from functools import lru_cache
 from typing import Any
 
@@ -34,6 +38,7 @@ from .components import STAGE_BASES, Component
 from .corruptions import Corruption, check_class
 from .data.base import Dataset
 from .errors import PluginError
+from .methods import Method
 
 ENTRY_POINT_GROUP = "i2pbench"
 BUILTIN_DISTRIBUTION = "i2pbench"  # the reference plugins ship in i2pbench's own distribution
@@ -58,6 +63,7 @@ class Preset:
     combinations: tuple[dict[str, str], ...]
     description: str
     plugin: str
+    method: str = ""  # the method that declared it ("": registered by register_presets)
 
 
 @dataclass(frozen=True)
@@ -95,7 +101,7 @@ Entry = tuple[Any, str]  # (class or LazyComponent, plugin)
 
 @dataclass
 class Registry:
-    """Every component, dataset, preset, shipped checkpoint and corruption the loaded plugins registered."""
+    """Every component, dataset, preset, shipped checkpoint, corruption and method the loaded plugins registered."""
 
     components: dict[str, dict[str, Entry]] = field(default_factory=lambda: {kind: {} for kind in STAGE_BASES})
     datasets: dict[str, Entry] = field(default_factory=dict)
@@ -103,23 +109,47 @@ class Registry:
     weights: list[tuple[str, str]] = field(default_factory=list)  # (path, plugin)
     plugins: list[PluginInfo] = field(default_factory=list)
     corruptions: dict[str, Entry] = field(default_factory=dict)
+    aliases: dict[str, dict[str, Entry]] = field(default_factory=dict)  # table kind -> alias -> (name, plugin)
+    methods: dict[str, Entry] = field(default_factory=dict)  # name -> (Method, plugin)
 
     def component(self, kind: str, name: str) -> type[Component]:
         if kind not in self.components:
             raise PluginError(f"unknown stage kind {kind!r}; kinds are {list(self.components)}")
-        return _resolved(self.components[kind], _lookup(self.components[kind], name, kind))
+        return _resolved(self.components[kind], self._name(kind, name))
 
     def dataset(self, name: str) -> type[Dataset]:
-        return _resolved(self.datasets, _lookup(self.datasets, name, "dataset"))
+        return _resolved(self.datasets, self._name("dataset", name))
 
     def corruption(self, name: str) -> type[Corruption]:
-        return _resolved(self.corruptions, _lookup(self.corruptions, name, "corruption"))
+        return _resolved(self.corruptions, self._name("corruption", name))
 
     def preset(self, name: str) -> Preset:
         return self.presets[_lookup(self.presets, name, "preset")]
 
+    def method(self, name: str) -> Method:
+        return self.methods[_lookup(self.methods, name, "method")][0]
+
     def owner(self, kind: str, name: str) -> str:
-        return self.components[kind][name][1]
+        return self.components[kind][self.canonical(kind, name)][1]
+
+    def canonical(self, kind: str, name: str) -> str:
+        """The registered name behind `name` (itself unless it is an alias): what rows and cache keys carry."""
+        return self.aliases.get(kind, {}).get(name, (name, ""))[0]
+
+    def path(self, kind: str, name: str) -> str:
+        """`module:Class` of a component, dataset or corruption, without importing it."""
+        entry = self._table(kind)[self.canonical(kind, name)][0]
+        return entry.path if isinstance(entry, LazyComponent) else f"{entry.__module__}:{entry.__qualname__}"
+
+    def _table(self, kind: str) -> dict[str, Entry]:
+        other = {"dataset": self.datasets, "corruption": self.corruptions}
+        return other[kind] if kind in other else self.components[kind]
+
+    def _name(self, kind: str, name: str) -> str:
+        """The canonical name, or an error suggesting the closest registered name or alias."""
+        table, aliases = self._table(kind), self.aliases.get(kind, {})
+        name = self.canonical(kind, name)
+        return name if name in table else _lookup({**table, **aliases}, name, kind)
 
 
 def _resolved(table: dict[str, Entry], name: str) -> Any:
@@ -246,10 +276,44 @@ def _add(table: dict[str, Entry], what: str, name: str, entry: Any, plugin: str)
     table[name] = (entry, plugin)
 
 
-def _add_preset(registry: Registry, plugin: str, name: str, combinations: Any, description: str = "") -> None:
+def _add_aliases(registry: Registry, kind: str, name: str, aliases: Any, plugin: str) -> None:
+    """Other names for `name`; one that is already a name or another component's alias is refused, as is a new
+    name that is already an alias."""
+    table, known = registry._table(kind), registry.aliases.setdefault(kind, {})
+    for alias in (aliases,) if isinstance(aliases, str) else aliases:
+        if not (isinstance(alias, str) and alias) or alias == name:
+            raise PluginError(f"plugin {plugin!r} gave {kind} {name!r} the alias {alias!r}, which is no other name")
+        holder = table[alias][1] if alias in table else known[alias][1] if alias in known else ""
+        if holder and known.get(alias, ("",))[0] != name:
+            raise PluginError(f"{kind} alias {alias!r} of {name!r} (plugin {plugin!r}) is a name of plugin {holder!r}")
+        known.setdefault(alias, (name, plugin))
+    if name in known:
+        raise PluginError(f"{kind} name {name!r} of plugin {plugin!r} is an alias registered by {known[name][1]!r}")
+
+
+def _add_preset(
+    registry: Registry, plugin: str, name: str, combinations: Any, description: str = "", method: str = ""
+) -> None:
     if name in registry.presets:
         raise PluginError(f"preset {name!r} is registered by both {registry.presets[name].plugin!r} and {plugin!r}")
-    registry.presets[name] = Preset(name, tuple(dict(c) for c in combinations), description, plugin)
+    registry.presets[name] = Preset(name, tuple(dict(c) for c in combinations), description, plugin, method)
+
+
+def _add_method(registry: Registry, plugin: str, method: Any) -> None:
+    """A method, its presets (attributed to it) and its shipped weights."""
+    if not isinstance(method, Method):
+        raise PluginError(f"plugin {plugin!r} registered {method!r} as a method, but it is no i2pbench.methods.Method")
+    try:
+        method.check()
+    except PluginError as exc:
+        raise PluginError(f"plugin {plugin!r}: {exc}") from None
+    if method.name in registry.methods:
+        raise PluginError(f"method {method.name!r} is registered by both {registry.methods[method.name][1]!r} and "
+                          f"{plugin!r}")  # fmt: skip
+    registry.methods[method.name] = (method, plugin)
+    for preset in method.presets:
+        _add_preset(registry, plugin, preset.name, method.combinations(preset), preset.description, method.name)
+    registry.weights += [(str(path), plugin) for path in method.weights]
 
 
 def build_registry(extra_plugins: tuple[object, ...] = (), strict: bool = False) -> Registry:
@@ -271,30 +335,42 @@ def build_registry(extra_plugins: tuple[object, ...] = (), strict: bool = False)
     return registry
 
 
+def _copy(registry: Registry) -> Registry:
+    """A registry to register one plugin into: tables copied, so a refused plugin leaves the original untouched."""
+    return replace(
+        registry,
+        components={kind: dict(table) for kind, table in registry.components.items()},
+        datasets=dict(registry.datasets),
+        presets=dict(registry.presets),
+        weights=list(registry.weights),
+        corruptions=dict(registry.corruptions),
+        aliases={kind: dict(table) for kind, table in registry.aliases.items()},
+        methods=dict(registry.methods),
+    )
+
+
 def _register(registry: Registry, pm: pluggy.PluginManager, plugin: str, strict: bool = False) -> None:
     """Add everything one plugin registers, or (when any of it is refused) nothing at all; `strict` imports what
     was registered by path, so a wrong path fails here."""
-    trial = Registry(
-        {kind: dict(table) for kind, table in registry.components.items()},
-        dict(registry.datasets),
-        dict(registry.presets),
-        list(registry.weights),
-        corruptions=dict(registry.corruptions),
-    )
-    tables = {**trial.components, "dataset": trial.datasets, "corruption": trial.corruptions}
+    trial = _copy(registry)
     hooks = {**hookspecs.STAGE_HOOKS, "dataset": "register_datasets", "corruption": "register_corruptions"}
     for kind, hook in hooks.items():
         for args, kwargs in _collect(pm, plugin, hook):
+            aliases = kwargs.pop("aliases", ())
             name, entry = _entry(kind, plugin, *args, **kwargs)
-            _add(tables[kind], kind, name, entry, plugin)
+            _add(trial._table(kind), kind, name, entry, plugin)
+            _add_aliases(trial, kind, name, aliases, plugin)
             if strict and isinstance(entry, LazyComponent):
-                _resolved(tables[kind], name)
+                _resolved(trial._table(kind), name)
     for args, kwargs in _collect(pm, plugin, "register_presets"):
         _add_preset(trial, plugin, *args, **kwargs)
     for (path,), _ in _collect(pm, plugin, "register_weights"):
         trial.weights.append((str(path), plugin))
-    registry.components, registry.datasets, registry.presets = trial.components, trial.datasets, trial.presets
-    registry.weights, registry.corruptions = trial.weights, trial.corruptions
+    for args, kwargs in _collect(pm, plugin, "register_methods"):
+        _add_method(trial, plugin, *args, **kwargs)
+    for table in fields(Registry):
+        if table.name != "plugins":
+            setattr(registry, table.name, getattr(trial, table.name))
 
 
 @lru_cache(maxsize=1)
@@ -306,20 +382,41 @@ def default_registry() -> Registry:
 def components_of(registry: Registry, plugin: str) -> dict[str, list[str]]:
     """What one plugin registered, by kind (for `i2pbench plugins`)."""
     out: dict[str, list[str]] = {}
-    for kind, table in registry.components.items():
-        names = sorted(n for n, (_, p) in table.items() if p == plugin)
+    for kind in [*registry.components, "dataset", "corruption"]:
+        names = sorted(n for n, (_, p) in registry._table(kind).items() if p == plugin)
         if names:
             out[kind] = names
-    datasets = sorted(n for n, (_, p) in registry.datasets.items() if p == plugin)
-    if datasets:
-        out["dataset"] = datasets
-    corruptions = sorted(n for n, (_, p) in registry.corruptions.items() if p == plugin)
-    if corruptions:
-        out["corruption"] = corruptions
     presets = sorted(n for n, p in registry.presets.items() if p.plugin == plugin)
     if presets:
         out["preset"] = presets
     weights = [path for path, p in registry.weights if p == plugin]
     if weights:
         out["weights"] = [os.path.basename(w) for w in weights]
+    methods = sorted(n for n, (_, p) in registry.methods.items() if p == plugin)
+    if methods:
+        out["method"] = methods
     return out
+
+
+def paths_of(registry: Registry, plugin: str) -> dict[str, dict[str, str]]:
+    """Each of the plugin's components, datasets and corruptions by kind: name -> `module:Class` (nothing imported),
+    one hop from a name typed on the command line to its code."""
+    out: dict[str, dict[str, str]] = {}
+    for kind, names in components_of(registry, plugin).items():
+        if kind in registry.components or kind in ("dataset", "corruption"):
+            out[kind] = {name: registry.path(kind, name) for name in names}
+    return out
+
+
+def aliases_of(registry: Registry, plugin: str) -> dict[str, dict[str, list[str]]]:
+    """The other names of the plugin's components, by kind: name -> [aliases]."""
+    out: dict[str, dict[str, list[str]]] = {}
+    for kind, table in registry.aliases.items():
+        for alias, (name, owner) in sorted(table.items()):
+            if owner == plugin:
+                out.setdefault(kind, {}).setdefault(name, []).append(alias)
+    return out
+
+
+def methods_of(registry: Registry, plugin: str) -> list[Method]:
+    return [m for m, p in registry.methods.values() if p == plugin]

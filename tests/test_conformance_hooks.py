@@ -3,7 +3,7 @@
 import pytest
 import toy_plugin
 
-from i2pbench.api import Corruption, Encoder3D, Exchanger, hookimpl
+from i2pbench.api import Corruption, Encoder3D, Exchanger, Method, Size, hookimpl
 from i2pbench.errors import PluginError
 from i2pbench.hookspecs import HOOK_NAMES, STAGE_HOOKS
 from i2pbench.plugins import build_registry, components_of
@@ -67,6 +67,10 @@ class EveryHook:
         register("/weights/every-hook.pt")
 
     @hookimpl
+    def register_methods(self, register):
+        register(Method("stub-method", {"extractor2d": "grid", "solver": "truth"}, (Size("one"),)))
+
+    @hookimpl
     def register_corruptions(self, register):
         register(CorruptionStub)
 
@@ -106,6 +110,7 @@ def test_datasets_presets_weights_and_corruptions_are_registered(registry):
         listed["dataset"] == ["toy"] and listed["preset"] == ["everything"] and listed["weights"] == ["every-hook.pt"]
     )
     assert listed["corruption"] == ["stub-corruption"]
+    assert registry.method("stub-method").sizes == (Size("one"),) and listed["method"] == ["stub-method"]
 
 
 def test_a_class_of_the_wrong_kind_is_refused_naming_the_plugin(monkeypatch):

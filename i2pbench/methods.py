@@ -1,0 +1,122 @@
+"""A method: learned stages trained together, declared once (DESIGN principle 8).
+
+A `Method` names the component at every stage kind, the sizes its learned stages come in (named sets of stage
+configs, e.g. the paper's and a CPU-trainable one), its presets (rows built from a size, with stages swapped for
+ablations) and the checkpoints it ships. A plugin registers it from `register_methods`; the registry turns it into
+presets and shipped weights, so a second learned method needs no glue of its own: `--preset`, the variant label of
+its rows, `--weights auto` and the checkpoint check all read what is declared here.
+
+A preset row is the same plain mapping `register_presets` takes: stage names, plus "confs" (the configs the row
+pins) and "variant" (the size's label). Nothing here imports a component, so `i2pbench plugins` stays light.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .components import STAGE_ORDER
+from .errors import PluginError
+
+Confs = Mapping[str, Mapping[str, Any]]  # stage kind -> config overrides
+
+
+@dataclass(frozen=True)
+class Size:
+    """One size of a method: configs for its own components, and pins that serve them.
+
+    `confs` apply where a row keeps the method's component at that kind (a swapped stage runs its own defaults);
+    `pins` apply to whatever component a row puts at that kind (e.g. the keypoint count the learned stages were
+    sized for, given to any extractor of an ablation row). `variant` is the label rows at this size carry (None:
+    the size's name; "" for the reference size, whose rows carry none).
+    """
+
+    name: str
+    confs: Confs = field(default_factory=dict)
+    pins: Confs = field(default_factory=dict)
+    variant: str | None = None
+    description: str = ""
+
+    @property
+    def label(self) -> str:
+        return self.name if self.variant is None else self.variant
+
+
+@dataclass(frozen=True)
+class Row:
+    """A preset row: the method at one of its sizes, with some stages swapped (`{"exchanger": "none"}`)."""
+
+    size: str
+    swaps: Mapping[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class MethodPreset:
+    """A named list of rows: `Row`s of the method, or plain combinations (e.g. a non-learned reference row)."""
+
+    name: str
+    rows: tuple[Row | Mapping[str, Any], ...]
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class Method:
+    """A method's stages, sizes, presets and shipped checkpoints; see the module docstring."""
+
+    name: str
+    stages: Mapping[str, str]  # stage kind -> component name, for every kind the method runs
+    sizes: tuple[Size, ...]
+    presets: tuple[MethodPreset, ...] = ()
+    weights: tuple[str | Path, ...] = ()  # checkpoint files, offered to `--weights auto`
+    description: str = ""
+
+    def size(self, name: str) -> Size:
+        for size in self.sizes:
+            if size.name == name:
+                return size
+        known = ", ".join(s.name for s in self.sizes)
+        raise PluginError(f"method {self.name!r} has no size {name!r} (sizes: {known})")
+
+    def row(self, size: str, **swaps: str) -> dict[str, Any]:
+        """The combination of a preset row: the method's stages at `size`, `swaps` replacing some of them."""
+        unknown = set(swaps) - set(STAGE_ORDER)
+        if unknown:
+            raise PluginError(f"method {self.name!r}: a row swaps unknown stage kinds {sorted(unknown)}")
+        names = {**self.stages, **swaps}
+        chosen = self.size(size)
+        own = {kind: conf for kind, conf in chosen.confs.items() if names.get(kind) == self.stages[kind]}
+        confs = copy.deepcopy({**own, **chosen.pins})
+        return {**names, "confs": confs, "variant": chosen.label}
+
+    def combinations(self, preset: MethodPreset) -> list[dict[str, Any]]:
+        """The preset's rows as the combinations `register_presets` would take."""
+        return [self.row(r.size, **r.swaps) if isinstance(r, Row) else copy.deepcopy(dict(r)) for r in preset.rows]
+
+    def check(self) -> None:
+        """Refuse a declaration that cannot work, before anything runs: unknown kinds, duplicate or unknown sizes."""
+        unknown = set(self.stages) - set(STAGE_ORDER)
+        if not self.name or unknown:
+            raise PluginError(f"method {self.name!r}: needs a name, and stage kinds among {list(STAGE_ORDER)}")
+        names = [s.name for s in self.sizes]
+        if not names or len(set(names)) != len(names):
+            raise PluginError(f"method {self.name!r}: needs at least one size, each named once (got {names})")
+        for size in self.sizes:
+            stray = set(size.confs) - set(self.stages) | set(size.pins) - set(STAGE_ORDER)
+            if stray:
+                raise PluginError(f"method {self.name!r} size {size.name!r} configures kinds {sorted(stray)} it lacks")
+        for preset in self.presets:
+            self.combinations(preset)  # an unknown size or swapped kind is refused here
+
+    def describe(self) -> dict[str, Any]:
+        """What `i2pbench plugins --json` shows of the method."""
+        return {
+            "name": self.name,
+            "description": self.description,
+            "stages": dict(self.stages),
+            "sizes": {s.name: {"variant": s.label, "description": s.description} for s in self.sizes},
+            "presets": [p.name for p in self.presets],
+            "weights": [Path(w).name for w in self.weights],
+        }
