@@ -64,8 +64,10 @@ def to_device(array: np.ndarray, device: torch.device) -> torch.Tensor:
     return torch.from_numpy(np.asarray(array)).to(device)
 
 
-class LightGlueMatcher(LearnedComponent, Matcher):
-    """Mutual maxima of the soft partial assignment P between 2D and 3D edge descriptors."""
+class OptimalMatcher(LearnedComponent, Matcher):
+    """Mutual maxima of the soft partial assignment P between 2D and 3D edge descriptors: EdgeRegNet's optimal
+    matching layer, written in LightGlue's style. Named `lightglue`, as the shipped weights and leaderboards record
+    it; `optimal-matching` is its honest alias (plugin.py)."""
 
     name = "lightglue"
     runtime_keys = frozenset({"filter_threshold", "fov_filter"})  # inference only: any value fits a checkpoint
@@ -166,3 +168,6 @@ class LightGlueMatcher(LearnedComponent, Matcher):
         batched = Features(features.desc2d.to(device)[None], features.desc3d.to(device)[None])
         ones = [torch.ones(1, n, dtype=torch.bool, device=device) for n in (len(kp2d), len(kp3d))]
         return self.batch_loss(inputs, batched, *ones)
+
+
+LightGlueMatcher = OptimalMatcher  # the class's former name, for code that imports it

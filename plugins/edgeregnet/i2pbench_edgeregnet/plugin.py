@@ -1,4 +1,5 @@
-"""Entry point of the edgeregnet plugins: EdgeRegNet's encoders, attention exchanger and matcher.
+"""Entry point of the edgeregnet plugin: EdgeRegNet's encoders, attention exchanger and matcher, and the method
+that binds them to their sizes, presets and shipped weights (method.py).
 
 The learned stages are registered by import path: their modules import torch, which `i2pbench plugins` and runs of
 the classic stages never need.
@@ -9,8 +10,7 @@ from __future__ import annotations
 from i2pbench.api import hookimpl
 from i2pbench.hookspecs import Register
 
-from .presets import register_presets  # noqa: F401
-from .shipped import shipped_weights
+from .method import edgeregnet
 
 
 @hookimpl
@@ -30,10 +30,10 @@ def register_exchangers(register: Register) -> None:
 
 @hookimpl
 def register_matchers(register: Register) -> None:
-    register("i2pbench_edgeregnet.matching:LightGlueMatcher", name="lightglue")
+    # the shipped weights and committed leaderboards name it `lightglue`; what it is: the optimal matching layer
+    register("i2pbench_edgeregnet.matching:OptimalMatcher", name="lightglue", aliases=("optimal-matching",))
 
 
 @hookimpl
-def register_weights(register: Register) -> None:
-    for path in shipped_weights():
-        register(path)
+def register_methods(register: Register) -> None:
+    register(edgeregnet())

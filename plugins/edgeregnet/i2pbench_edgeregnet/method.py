@@ -1,0 +1,91 @@
+"""EdgeRegNet as one declared method: its stages, its two sizes, the paper's ablations as presets, its weights.
+
+The shipped checkpoints were trained on this project's CPU, so they are the CPU size (configs.SMALL), which the
+`default` preset runs: its rows pin exactly the stage configs the weights were trained with, which is what lets
+`--weights auto` find them. The paper size has no shipped weights and runs `untrained` unless given a checkpoint.
+
+`--preset edge-ablation` reproduces Table III in one command: every row keeps the learned stages at the CPU size and
+changes only the studied stage. Each row needs weights trained with its own extractors (a checkpoint belongs to the
+stages it was trained with), so a row with none shipped runs and is labelled `untrained` rather than borrowing
+another row's weights.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from i2pbench.methods import Method, MethodPreset, Row, Size
+
+from .configs import COMPONENTS, FULL, SMALL, SMALL_KEYPOINTS
+
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+EDGES = {"extractor2d": "lsd", "extractor3d": "depth+reflectance"}
+SOLVER = {"solver": "epnp-ransac"}
+
+PAPER = Size("paper", FULL, variant="", description="d=256, 6 blocks, 3000 + 3000 keypoints (the paper's)")
+# the extractors' cap serves the learned stages whichever extractor an ablation row uses; the paper's 3000 is the
+# extractors' own default, so it is not pinned and classic rows built over a paper-size row stay plain
+CPU = Size(
+    "cpu-size",
+    SMALL,
+    pins={kind: {"max_keypoints": SMALL_KEYPOINTS} for kind in EDGES},
+    description=f"d=128, 3 blocks, {SMALL_KEYPOINTS} + {SMALL_KEYPOINTS} keypoints, yaw-canonical 3D (shipped weights)",
+)
+
+# Table III: (3D extractor, 2D extractor), in the paper's row order.
+EDGE_ROWS = (
+    ("random", "random"),
+    ("depth+reflectance", "canny"),
+    ("depth+reflectance", "sobel"),
+    ("reflectance", "lsd"),
+    ("depth", "lsd"),
+    ("depth+reflectance", "lsd"),
+)
+# Table IV: without and with the attention exchanger, on the paper's edges.
+EXCHANGERS = ("none", "attention")
+
+# the non-learned reference: the paper's edges under ground-truth matches
+ORACLE = {**EDGES, "matcher": "oracle", **SOLVER, "confs": {k: {"max_keypoints": SMALL_KEYPOINTS} for k in EDGES}}
+
+PRESETS = (
+    MethodPreset(
+        "default", (Row("cpu-size"),), "EdgeRegNet (CPU-sized, shipped weights): lsd + depth+reflectance edges"
+    ),
+    MethodPreset(
+        "edgeregnet-full", (Row("paper"),), "EdgeRegNet at the paper's size (d=256, 6 blocks, 3000 + 3000 keypoints)"
+    ),
+    MethodPreset(
+        "edge-ablation",
+        tuple(Row("cpu-size", {"extractor2d": e2, "extractor3d": e3}) for e3, e2 in EDGE_ROWS),
+        "Table III: 2D x 3D edge extractors (random, canny, sobel, lsd x random, depth, reflectance, "
+        "depth+reflectance) under EdgeRegNet's learned stages (CPU size)",
+    ),
+    MethodPreset(
+        "exchange-ablation",
+        tuple(Row("cpu-size", {"exchanger": exchanger}) for exchanger in EXCHANGERS),
+        "Table IV: no feature exchanger vs attention, with lsd + depth+reflectance edges (CPU size)",
+    ),
+    MethodPreset(
+        "baselines",
+        (
+            Row("cpu-size"),
+            Row("cpu-size", {"exchanger": "none"}),
+            Row("cpu-size", {"matcher": "cosine"}),
+            Row("cpu-size", {"extractor2d": "random", "extractor3d": "random"}),
+            ORACLE,
+        ),
+        "the reference pipeline beside no-exchange, cosine, random-edge and oracle rows",
+    ),
+)
+
+
+def edgeregnet() -> Method:
+    """The declaration, built when the plugin registers (the weights folder is listed then, nothing is loaded)."""
+    return Method(
+        "edgeregnet",
+        {**EDGES, **COMPONENTS, **SOLVER},
+        (PAPER, CPU),
+        PRESETS,
+        tuple(sorted(WEIGHTS_DIR.glob("*.pt"))),
+        "edge pixels and points, CNN + PointNet++ encoders, attention exchange, optimal matching, EPnP",
+    )
