@@ -8,12 +8,14 @@ of a stage is the time its FLOPs would take at the measured rate of their kernel
 achieved/roofline is that time over the measured one. Uncounted work (elementwise ops, softmax, gathers, the
 farthest point sampling loop) shows as a lower ratio, not as FLOPs. See docs/performance.md.
 
-    .venv/bin/python benchmarks/roofline.py [--preset default|edgeregnet-full] [--device cpu|cuda] [--repeat 3]
+    .venv/bin/python benchmarks/roofline.py [--preset default|edgeregnet-full] [--device cpu|cuda] [--repeat 3] [--amp bf16]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import statistics
 import time
 from collections.abc import Callable
@@ -24,7 +26,7 @@ import torch.nn.functional as F
 from edgeregnet_latency import kitti_sized_frame  # this folder is on sys.path when the script runs
 from torch.utils.flop_counter import FlopCounterMode
 
-from i2pbench.api import Features
+from i2pbench.calling import StageInputs, call_stage
 from i2pbench.grid import base_combinations, expand
 from i2pbench.pipeline import Pipeline
 from i2pbench.plugins import default_registry
@@ -61,12 +63,13 @@ def median_seconds(fn: Callable[[], object], repeat: int, device: str) -> float:
     return statistics.median(times)
 
 
-def machine_rates(device: str, repeat: int) -> dict[str, float]:
-    """GFLOP/s of each kernel kind on this device, fp32."""
+def machine_rates(device: str, repeat: int, dtype: torch.dtype = torch.float32) -> dict[str, float]:
+    """GFLOP/s of each kernel kind on this device, in `dtype` (what the stages run in under --amp)."""
     n, (h, w) = 2048, (376, 1241)
-    a, b = torch.randn(n, n, device=device), torch.randn(n, n, device=device)
-    q, k, v = (torch.randn(1, 4, 3000, 64, device=device) for _ in range(3))
-    image, weight = torch.randn(1, 64, h, w, device=device), torch.randn(64, 64, 3, 3, device=device)
+    a, b = torch.randn(n, n, device=device, dtype=dtype), torch.randn(n, n, device=device, dtype=dtype)
+    q, k, v = (torch.randn(1, 4, 3000, 64, device=device, dtype=dtype) for _ in range(3))
+    image = torch.randn(1, 64, h, w, device=device, dtype=dtype)
+    weight = torch.randn(64, 64, 3, 3, device=device, dtype=dtype)
     flops = {"matmul": 2 * n**3, "attention": 4 * 4 * 3000 * 3000 * 64, "conv": 2 * 64 * 64 * 9 * h * w}
     runs = {
         "matmul": lambda: a @ b,
@@ -101,17 +104,16 @@ def build_pipeline(preset: str, device: str) -> Pipeline:
 
 
 def stage_calls(pipeline: Pipeline, n_keypoints: int) -> dict[str, Callable[[], object]]:
-    """Each learned stage on the KITTI-sized frame, fed its upstream stages' outputs (computed once)."""
+    """Each learned stage on the KITTI-sized frame, called the way a run calls it (`call_stage`: declared view,
+    contract check), fed its upstream stages' outputs (computed once)."""
     frame, kp2d, kp3d = kitti_sized_frame(n_keypoints)
-    e2, e3, ex, matcher = (pipeline.stages[kind] for kind in LEARNED)
-    d2, d3 = e2(frame, kp2d), e3(frame, kp3d)
-    features = ex(frame, kp2d, kp3d, Features(d2, d3))
-    return {
-        "encoder2d": lambda: e2(frame, kp2d),
-        "encoder3d": lambda: e3(frame, kp3d),
-        "exchanger": lambda: ex(frame, kp2d, kp3d, Features(d2, d3)),
-        "matcher": lambda: matcher(frame, kp2d, kp3d, features),
-    }
+    inputs = StageInputs(kp2d, kp3d)
+    calls = {}
+    for kind in LEARNED:
+        stage = pipeline.stages[kind]
+        calls[kind] = functools.partial(call_stage, stage, frame, inputs)
+        inputs = inputs.after(calls[kind]())
+    return calls
 
 
 def count_flops(call: Callable[[], object], formulas: dict | None = ATTENTION_FORMULAS) -> dict[str, int]:
@@ -123,9 +125,13 @@ def count_flops(call: Callable[[], object], formulas: dict | None = ATTENTION_FO
     return flops
 
 
-def measure_stages(pipeline: Pipeline, n_keypoints: int, repeat: int, device: str) -> tuple[list[Stage], int]:
-    """Each learned stage's FLOPs and median time, and the FLOPs torch counts on its own (no attention formula)."""
-    with torch.inference_mode():
+def measure_stages(
+    pipeline: Pipeline, n_keypoints: int, repeat: int, device: str, amp: str = "off"
+) -> tuple[list[Stage], int]:
+    """Each learned stage's FLOPs and median time, and the FLOPs torch counts on its own (no attention formula);
+    `amp` "bf16": the stages run under bfloat16 autocast, as `train --amp bf16` runs them."""
+    autocast = torch.autocast(device, dtype=torch.bfloat16) if amp == "bf16" else contextlib.nullcontext()
+    with torch.inference_mode(), autocast:
         calls = stage_calls(pipeline, n_keypoints)
         stages = [Stage(k, count_flops(c), median_seconds(c, repeat, device)) for k, c in calls.items()]
         uncounted = sum(sum(count_flops(c, formulas=None).values()) for c in calls.values())
@@ -136,7 +142,7 @@ def print_rates(before: dict[str, float], after: dict[str, float]) -> dict[str, 
     """Print the rates measured before and after the stages (their drift is the machine's load changing) and return
     their mean, the rates the stages are compared with."""
     rates = {kind: (before[kind] + after[kind]) / 2 for kind in KINDS}
-    print("\nmachine (fp32 GFLOP/s, median after warm-up; before and after the stages, their mean):")
+    print("\nmachine (GFLOP/s, median after warm-up; before and after the stages, their mean):")
     shapes = {"matmul": "2048^3", "attention": "SDPA [1, 4, 3000, 64]", "conv": "3x3 64->64 on 376 x 1241"}
     for kind in reversed(KINDS):
         ratio = rates[kind] / rates["matmul"]
@@ -167,15 +173,17 @@ def main() -> None:
     parser.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
+    parser.add_argument("--amp", choices=("off", "bf16"), default="off", help="bf16: autocast stages, bf16 rates")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    print(f"torch {torch.__version__}, {args.device}, {args.threads} threads, median of {args.repeat}")
-    before = machine_rates(args.device, args.repeat)
+    dtype = torch.bfloat16 if args.amp == "bf16" else torch.float32
+    print(f"torch {torch.__version__}, {args.device}, {args.threads} threads, median of {args.repeat}, amp {args.amp}")
+    before = machine_rates(args.device, args.repeat, dtype)
     pipeline = build_pipeline(args.preset, args.device)
     n_keypoints = pipeline.stages["extractor2d"].conf["max_keypoints"]
     print(f"preset {args.preset}: {pipeline.combination.label}, {n_keypoints} + {n_keypoints} keypoints")
-    stages, uncounted = measure_stages(pipeline, n_keypoints, args.repeat, args.device)
-    print_stages(stages, print_rates(before, machine_rates(args.device, args.repeat)))
+    stages, uncounted = measure_stages(pipeline, n_keypoints, args.repeat, args.device, args.amp)
+    print_stages(stages, print_rates(before, machine_rates(args.device, args.repeat, dtype)))
     total = sum(s.total for s in stages)
     print(f"\nFlopCounterMode without the CPU attention formula: {uncounted / 1e9:.1f} of {total / 1e9:.1f} GFLOP")
 
