@@ -26,9 +26,10 @@ from typing import Any
 import torch
 
 from ..calling import StageInputs, call_stage
-from ..components import STAGE_BASES, STAGE_ORDER, Component, ConfigError, LearnedComponent
+from ..components import STAGE_BASES, STAGE_ORDER, Component, ConfigError
 from ..contracts import ContractError
 from ..errors import StageError
+from ..learned import LearnedComponent
 from ..trace import StageRecord
 from ..types import Frame
 from .cases import Case, bad_cases, empty_cases
