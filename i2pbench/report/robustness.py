@@ -109,12 +109,26 @@ def same_frames(records: pd.DataFrame) -> pd.DataFrame:
     return records[corrupted | np.array([k in wanted for k in keys], dtype=bool)].reset_index(drop=True)
 
 
-def collect(records: pd.DataFrame, base: Protocol) -> Robustness | None:
-    """The robustness data of `records` under `base`; None when none of them is corrupted."""
+def run_order(run: RunDir) -> list[str]:
+    """Corruptions in the order the run's invocations ran them, oldest first (as its `<out>-robustness` lists them)."""
+    cards = [card for m in run.meta for card in m.get("protocols", [m.get("protocol")])]
+    return list(dict.fromkeys(card.get("corruption", "") for card in cards if isinstance(card, dict)))
+
+
+def in_order(records: pd.DataFrame, order: list[str]) -> pd.DataFrame:
+    """Records sorted by corruption (in `order`, then by name) and severity: a store lists them by cache key."""
+    rank = {name: i for i, name in enumerate(order)}
+    ranked = records.assign(_rank=records["corruption"].map(lambda c: rank.get(c, len(rank))))
+    ranked = ranked.sort_values(["_rank", "corruption", "severity", "frame_id"], kind="stable")
+    return ranked.drop(columns="_rank").reset_index(drop=True)
+
+
+def collect(records: pd.DataFrame, base: Protocol, order: list[str] | None = None) -> Robustness | None:
+    """The robustness data of `records` under `base`, corruptions in `order`; None when none of them is corrupted."""
     records = of_protocol(records, base)
     if (records["corruption"] == "").all():
         return None
-    records = same_frames(records)
+    records = in_order(same_frames(records), order or [])
     board = lb.build(records, base)
     kinds = {name: kind_of(name) for name in pd.unique(records["corruption"]) if name}
     return Robustness(records, lb.robustness(board, kinds), kinds)
@@ -122,7 +136,7 @@ def collect(records: pd.DataFrame, base: Protocol) -> Robustness | None:
 
 def load(run: RunDir) -> Robustness | None:
     """The run directory's robustness data (its store holds every protocol's records; `run.records` only one)."""
-    return collect(ResultsStore(run.root).load(), clean(run.protocol))
+    return collect(ResultsStore(run.root).load(), clean(run.protocol), run_order(run))
 
 
 def severities(summary: pd.DataFrame) -> list[int]:
