@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regenerates every committed leaderboard under leaderboards/ (the CI golden ones have gate.sh --update) from the
 # shipped weights, on the embedded synthetic test split and the real frames in ../shared/data. Review the diff.
-#   bash leaderboards/make.sh              all of them (about an hour on 2 busy cores)
+#   bash leaderboards/make.sh              all of them (about two hours on 2 busy cores)
 #   bash leaderboards/make.sh kitti-real   only the boards whose name contains this word
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -33,3 +33,15 @@ case "nuscenes-real" in *"$ONLY"*)
 esac
 board nuscenes-real --preset baselines --dataset nuscenes --split val --data-root "$root" \
     --data-conf 'cameras=[CAM_FRONT, CAM_FRONT_LEFT, CAM_FRONT_RIGHT, CAM_BACK, CAM_BACK_LEFT, CAM_BACK_RIGHT]'
+# Robustness (docs/robustness.md): clean, then all twelve corruptions at severities 1, 3, 5, on the first 10 frames
+ROBUST=(--robustness --severities 1,3,5 --frames 10)
+CLASSIC=(--matcher oracle --extractor lsd,canny --extractor3d depth+reflectance --solver epnp-ransac,poselib)
+board robustness-synthetic-test-classic "${CLASSIC[@]}" --dataset synthetic --split test "${ROBUST[@]}"
+board robustness-synthetic-test-edgeregnet --preset default --dataset synthetic --split test "${ROBUST[@]}"
+board robustness-kitti-real-classic "${CLASSIC[@]}" --dataset kitti --split all --data-root "$DATA/kitti_real" \
+    "${ROBUST[@]}"
+# the held-out sequence 26 (val), the shipped EdgeRegNet beside the classic rows on the same 10 frames
+board robustness-kitti-real-26-classic "${CLASSIC[@]}" --dataset kitti --split val --data-root "$DATA/kitti_real" \
+    "${ROBUST[@]}"
+board robustness-kitti-real-26-edgeregnet --preset default --dataset kitti --split val \
+    --data-root "$DATA/kitti_real" "${ROBUST[@]}"
