@@ -28,6 +28,9 @@ class SensorFrame:
     T_cam_lidar: np.ndarray  # [4 x 4] float64, maps LiDAR points into the camera frame
     match_radius_px: float = 3.0  # eps_c: a projected 3D point within this many pixels of a 2D point is a true match
     source: str = ""  # file or record the frame was read from, for error messages
+    # [6] float64 (vx, vy, vz in m/s, wx, wy, wz in rad/s): the LiDAR's own velocity, in its frame, at the scan's
+    # time; None when the dataset does not know it (corruptions needing it do not apply: docs/robustness.md)
+    ego_motion: np.ndarray | None = None
 
     @property
     def image_size(self) -> tuple[int, int]:
