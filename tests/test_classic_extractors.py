@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from i2pbench_classic.capping import cap
 from i2pbench_classic.extract2d import (
     CannyExtractor,
+    GridExtractor2D,
     LSDExtractor,
     RandomExtractor2D,
     SobelExtractor,
@@ -232,3 +234,42 @@ def test_random_2d_pixels_are_distinct_seeded_and_inside():
     assert uv[:, 0].min() >= 0 and uv[:, 0].max() <= 299 and uv[:, 1].min() >= 0 and uv[:, 1].max() <= 199
     np.testing.assert_array_equal(uv, RandomExtractor2D()(frame).uv)
     assert not np.array_equal(uv, RandomExtractor2D({"seed": 7})(frame).uv)
+
+
+# --- grid: the centres of whole stride x stride cells
+
+
+def blank_frame(width: int, height: int, frame_id: str = "g") -> Frame:
+    return scan_frame([1.0], frame_id=frame_id, image=np.zeros((height, width, 3), np.uint8))
+
+
+def test_the_grid_is_the_centres_of_whole_cells_in_raster_order():
+    # 20 x 18 pixels at stride 8: 2 whole columns (0-7, 8-15; 16-19 is partial) and 2 whole rows (0-7, 8-15)
+    uv = GridExtractor2D()(blank_frame(20, 18)).uv
+    np.testing.assert_array_equal(uv, [[3.5, 3.5], [11.5, 3.5], [3.5, 11.5], [11.5, 11.5]])
+    assert uv.dtype == np.float32
+    np.testing.assert_array_equal(GridExtractor2D({"stride": 3})(blank_frame(3, 3)).uv, [[1.0, 1.0]])
+    assert len(GridExtractor2D()(blank_frame(7, 100)).uv) == 0  # narrower than one cell
+
+
+def test_the_grid_cap_is_the_seeded_subset_of_the_other_extractors():
+    capped = GridExtractor2D({"max_keypoints": 3})
+    frame = blank_frame(40, 40)  # 25 cells
+    first = capped(frame).uv
+    every = GridExtractor2D()(frame).uv
+    np.testing.assert_array_equal(first, every[cap(len(every), 3, 0, frame)])  # the shared rule, in raster order
+    np.testing.assert_array_equal(capped(frame).uv, first)
+    others = [capped(blank_frame(40, 40, f"g{i}")).uv for i in range(5)]
+    assert any(not np.array_equal(o, first) for o in others)  # seeded by the frame, not fixed
+
+
+def test_a_stride_below_one_is_refused_with_a_message():
+    with pytest.raises(ValueError, match="stride must be a positive"):
+        GridExtractor2D({"stride": 0})(blank_frame(8, 8))
+
+
+def test_the_grid_extractor_conforms():
+    from i2pbench.testing import check_component
+
+    report = check_component(GridExtractor2D, {"stride": 8, "max_keypoints": 50})
+    assert not list(report), str(report)

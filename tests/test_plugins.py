@@ -153,7 +153,7 @@ def _eager_classic():
 
     module = types.ModuleType("eager_classic")
     module.register_extractors_2d = _registering(
-        (e2.LSDExtractor, e2.CannyExtractor, e2.SobelExtractor, e2.RandomExtractor2D)
+        (e2.LSDExtractor, e2.CannyExtractor, e2.SobelExtractor, e2.RandomExtractor2D, e2.GridExtractor2D)
     )
     module.register_extractors_3d = _registering(
         (e3.DepthExtractor, e3.ReflectanceExtractor, e3.DepthReflectanceExtractor, e3.RandomExtractor3D)

@@ -1,4 +1,5 @@
-"""Image keypoints: edge pixels from LSD (the paper's choice), Canny and Sobel (its ablations), and random pixels.
+"""Image keypoints: edge pixels from LSD (the paper's choice), Canny and Sobel (its ablations), random pixels, and a
+regular grid (the dense pixels of CorrI2P's feature map, DeepI2P's grid cells).
 
 Every extractor works on the grayscale image, returns pixel centres as float32 (u = column, v = row) in raster order,
 and caps the count with the seeded rule in `capping` (uniform subset without replacement, sorted), so it is
@@ -132,3 +133,31 @@ class RandomExtractor2D(Extractor2D):
         width, height = frame.image_size
         rows, cols = np.divmod(cap(width * height, self.conf["max_keypoints"], self.conf["seed"], frame), width)
         return Keypoints2D(uv=np.stack([cols, rows], axis=1).astype(np.float32).reshape(-1, 2))
+
+
+class GridExtractor2D(Extractor2D):
+    """The centres of the image's whole `stride` x `stride` cells, in raster order: the dense pixel set of methods
+    that describe every cell of a strided feature map (CorrI2P's stride-8 map of a full-size KITTI image).
+
+    Cell (i, j) covers pixels [stride j, stride j + stride) x [stride i, stride i + stride), whose centre is at
+    u = stride j + (stride - 1) / 2 (pixel centres at integers). Partial cells at the right and bottom borders are left
+    out, so an image narrower than one cell has none. The cap is the seeded rule of the other extractors.
+    """
+
+    name = "grid"
+    default_conf: ClassVar[dict[str, Any]] = {
+        "stride": 8,  # cell size in pixels
+        "max_keypoints": None,  # keep at most this many cells (seeded uniform subset); None keeps the whole grid
+        "seed": 0,  # seeds the subset together with the dataset and frame id
+    }
+
+    def __call__(self, frame: Frame) -> Keypoints2D:
+        stride = int(self.conf["stride"])
+        if stride < 1:
+            raise ValueError(f"extractor2d 'grid': stride must be a positive number of pixels, got {stride}")
+        width, height = frame.image_size
+        rows, cols = np.divmod(np.arange((height // stride) * (width // stride)), max(width // stride, 1))
+        keep = cap(len(rows), self.conf["max_keypoints"], self.conf["seed"], frame)
+        centre = (stride - 1) / 2
+        uv = np.stack([cols[keep] * stride + centre, rows[keep] * stride + centre], axis=1)
+        return Keypoints2D(uv=uv.astype(np.float32).reshape(-1, 2))

@@ -1,4 +1,5 @@
-"""Entry point of the classic plugins: edge extractors, cosine and oracle matchers, PnP solvers, and their preset.
+"""Entry point of the classic plugins: edge, random and grid extractors, cosine and oracle matchers, PnP solvers,
+and their preset.
 
 Components are registered by import path, so listing plugins imports none of OpenCV, PoseLib or torch (the cosine
 matcher's), and a run imports only the modules of the stages it uses.
@@ -16,6 +17,7 @@ def register_extractors_2d(register: Register) -> None:
     register("i2pbench_classic.extract2d:CannyExtractor", name="canny")
     register("i2pbench_classic.extract2d:SobelExtractor", name="sobel")
     register("i2pbench_classic.extract2d:RandomExtractor2D", name="random")
+    register("i2pbench_classic.extract2d:GridExtractor2D", name="grid")
 
 
 @hookimpl
