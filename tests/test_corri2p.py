@@ -1,0 +1,370 @@
+"""CorrI2P's plugin: the conformance kit on every component, hand-worked labels, circle loss and mutual matching,
+a tiny configuration that learns one frame, batching, and the method's declaration."""
+
+import math
+import subprocess
+import sys
+
+import i2pbench_corri2p.plugin as corri2p_plugin
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+from i2pbench_corri2p import configs
+from i2pbench_corri2p.exchange import CorrI2PExchanger
+from i2pbench_corri2p.image import CorrI2PImageEncoder
+from i2pbench_corri2p.loss import anchor_pairs, balanced_bce, circle_loss, overlap_labels
+from i2pbench_corri2p.overlap import CorrI2PMatcher, candidates, mutual_nearest, nearest_to_each_column
+from i2pbench_corri2p.points import CorrI2PPointEncoder
+from test_edgeregnet_training import one_thread, tiny_frame  # noqa: F401 (an autouse fixture)
+
+from i2pbench.api import Features, Frame, Keypoints2D, Keypoints3D
+from i2pbench.batching import BatchForward, prepare_stage
+from i2pbench.plugins import build_registry
+from i2pbench.testing import check_component, registered_components
+from i2pbench.training_data import collate_samples
+
+D, G = 48, 16
+WIDTHS = {"descriptor_dim": D, "global_dim": G}
+TINY = {
+    "encoder2d": {
+        **WIDTHS,
+        "blocks": (1, 1, 1, 1),
+        "channels": (8, 8, 16, 16),
+        "stem_channels": 8,
+        "decoder_channels": (16, 8, 8),
+        "image_scale": 1.0,
+        "groups": 4,
+    },
+    "encoder3d": {
+        **WIDTHS,
+        "num_points": 1024,
+        "sa1": {"npoint": 32, "radius": 0.2, "nsample": 16, "mlp": (8, 16)},
+        "sa2": {"npoint": 32, "radius": 0.4, "nsample": 8, "mlp": (16, 32)},
+        "global_mlp": (16, G),
+        "fp_mlp": (32,),
+        "head_mlp": (32,),
+        "groups": 4,
+    },
+    "exchanger": {**WIDTHS, "attention_dim": 16, "num_heads": 2, "point_nodes": 16, "cell_px": 16, "fusion_mlp": (32,)},
+    # the tiny frame's 2D keypoints sit half a pixel from their 3D partners, so a small radius keeps the pairs true
+    "matcher": {
+        "descriptor_dim": D,
+        "match_dim": 16,
+        "head_mlp": (32,),
+        "pair_radius_px": 2.0,
+        "overlap_window_px": 2.0,
+    },
+}
+KINDS = ("encoder2d", "encoder3d", "exchanger", "matcher")
+CLASSES = (CorrI2PImageEncoder, CorrI2PPointEncoder, CorrI2PExchanger, CorrI2PMatcher)
+
+
+def tiny_modules() -> dict[str, torch.nn.Module]:
+    torch.manual_seed(0)
+    return {kind: cls(TINY[kind]) for kind, cls in zip(KINDS, CLASSES, strict=True)}
+
+
+def features_of(stages, frame, kp2d, kp3d) -> Features:
+    raw = Features(stages["encoder2d"](frame, kp2d), stages["encoder3d"](frame, kp3d))
+    return stages["exchanger"](frame, kp2d, kp3d, raw)
+
+
+# --- conformance
+
+
+COMPONENTS = registered_components(corri2p_plugin)
+
+
+@pytest.mark.parametrize("cls", COMPONENTS, ids=lambda c: c.name)
+@pytest.mark.parametrize("size", ["paper", "tiny"])
+def test_every_component_conforms(cls, size):
+    report = check_component(cls, TINY[cls.kind] if size == "tiny" else None)
+    assert not list(report), str(report)
+
+
+def test_the_plugin_registers_one_component_per_learned_stage():
+    assert [(c.kind, c.name) for c in COMPONENTS] == list(configs.COMPONENTS.items())
+
+
+# --- labels, worked by hand
+
+# camera looking along LiDAR +x (x_cam = -y, y_cam = -z, z_cam = x), f = 100 px, centre (50, 40), image 100 x 80
+K = np.array([[100.0, 0, 50], [0, 100.0, 40], [0, 0, 1]])
+T = np.eye(4)
+T[:3, :3] = [[0, -1, 0], [0, 0, -1], [1, 0, 0]]
+POINTS = np.array(
+    [
+        [10, 0, 0],  # -> (50, 40)
+        [10, -1, 0],  # -> (60, 40)
+        [10, 0, 1],  # -> (50, 30)
+        [-10, 0, 0],  # behind the camera
+        [10, 5.2, 0],  # -> (-2, 40): in front, left of the image
+    ],
+    np.float32,
+)
+PIXELS = np.array(
+    [
+        [50, 40],  # on point 0
+        [63.5, 42],  # 3.5 and 2 px from point 1: inside a 4 px window
+        [55, 35],  # 5 px from points 0, 1 and 2 along some axis: outside every window
+        [50, 34],  # 4 px below point 2: on the window's edge, which counts
+        [1, 40],  # 3 px from point 4's projection, but point 4 is outside the image
+    ],
+    np.float32,
+)
+
+
+def labelled_frame() -> tuple[Frame, Keypoints2D, Keypoints3D]:
+    points = np.c_[POINTS, np.zeros(len(POINTS))].astype(np.float32)
+    image = np.zeros((80, 100, 3), np.uint8)
+    ranges = np.linalg.norm(POINTS, axis=1).astype(np.float32)
+    frame = Frame("toy", "labels", image, points, np.zeros(len(points), np.int16), ranges, K, T)
+    return frame, Keypoints2D(PIXELS), Keypoints3D.from_index(frame, np.arange(len(points)))
+
+
+def test_overlap_labels_for_a_known_camera():
+    overlap2d, overlap3d = overlap_labels(*labelled_frame(), window_px=4.0)
+    assert overlap3d.tolist() == [True, True, True, False, False]
+    assert overlap2d.tolist() == [True, True, False, True, False]
+
+
+def test_anchor_pairs_for_a_known_camera():
+    pairs = anchor_pairs(*labelled_frame(), radius_px=8.0, num_anchors=512)
+    # each in-image point's nearest pixel: point 0 -> pixel 0 (0 px), 1 -> 1 (4.03 px), 2 -> 3 (4 px)
+    assert pairs["anchor3d"].tolist() == [0, 1, 2] and pairs["anchor2d"].tolist() == [0, 1, 3]
+    assert int(pairs["num_pairs"]) == 3
+    # every pixel-point pair within 8 px: pixel 3 (50, 34) is also 6 px from point 0 (50, 40)
+    assert pairs["positive"].tolist() == [[True, False, False], [False, True, False], [True, False, True]]
+
+
+def test_anchors_are_capped_by_a_subset_seeded_by_the_frame_and_its_transform():
+    frame, kp2d, kp3d = labelled_frame()
+    first = anchor_pairs(frame, kp2d, kp3d, radius_px=8.0, num_anchors=2)
+    assert len(first["anchor3d"]) == 2 and set(first["anchor3d"]) <= {0, 1, 2}
+    np.testing.assert_array_equal(anchor_pairs(frame, kp2d, kp3d, 8.0, 2)["anchor3d"], first["anchor3d"])
+
+
+# --- the losses, worked by hand
+
+
+def softplus(x: float) -> float:
+    return math.log1p(math.exp(x))
+
+
+def test_circle_loss_on_two_pixels_and_two_points():
+    """pixel i pairs with point i; distances 1 - cos, margins 0.2 / 1.8, scale 10.
+
+    A positive at d contributes 10 (d - 0.2)^2 (weight d - 0.2 > 0), a negative 10 (1.8 - d)^2. Rows (pixels):
+    0: positive 0.5 -> 0.9, negative 1.0 -> 6.4; 1: positive 0.3 -> 0.1, negative 1.5 -> 0.9. Columns (points):
+    0: positive 0.5 -> 0.9, negative 1.5 -> 0.9; 1: positive 0.3 -> 0.1, negative 1.0 -> 6.4. With one term per
+    set each log-sum-exp is that term, and an anchor's loss is softplus(sum) / 10; the loss is the mean over the rows
+    plus the mean over the columns.
+    """
+    dist = torch.tensor([[[0.5, 1.0], [1.5, 0.3]]])
+    positive = torch.eye(2, dtype=torch.bool)[None]
+    valid = (torch.ones(1, 2, dtype=torch.bool), torch.ones(1, 2, dtype=torch.bool))
+    rows = (softplus(0.9 + 6.4) + softplus(0.1 + 0.9)) / 2 / 10
+    cols = (softplus(0.9 + 0.9) + softplus(0.1 + 6.4)) / 2 / 10
+    loss = circle_loss(dist, positive, valid, margins=(0.2, 1.8), gamma=10.0)
+    torch.testing.assert_close(loss, torch.tensor([rows + cols]))
+    # padding (a third, invalid anchor on each side with anything in it) changes nothing
+    padded = F.pad(dist, (0, 1, 0, 1), value=0.0)
+    pad_positive = F.pad(positive, (0, 1, 0, 1), value=True)
+    pad_valid = (torch.tensor([[True, True, False]]), torch.tensor([[True, True, False]]))
+    torch.testing.assert_close(circle_loss(padded, pad_positive, pad_valid), loss)
+
+
+def test_circle_loss_of_a_frame_without_pairs_is_zero_with_finite_gradients():
+    dist = torch.full((1, 2, 2), 0.7, requires_grad=True)
+    valid = (torch.ones(1, 2, dtype=torch.bool), torch.ones(1, 2, dtype=torch.bool))
+    loss = circle_loss(dist, torch.zeros(1, 2, 2, dtype=torch.bool), valid)
+    loss.sum().backward()
+    assert loss.item() == 0 and torch.isfinite(dist.grad).all()
+
+
+def test_balanced_bce_weighs_both_classes_equally():
+    # logits 0: every BCE is ln 2; three overlapping and one not -> ln 2 (mean of three) + ln 2 (mean of one)
+    logits = torch.zeros(1, 5)
+    target = torch.tensor([[True, True, True, False, False]])
+    mask = torch.tensor([[True, True, True, True, False]])
+    torch.testing.assert_close(balanced_bce(logits, target, mask), torch.tensor([2 * math.log(2)]))
+    # a confident right answer on the lone negative halves it
+    logits[0, 3] = -30.0
+    torch.testing.assert_close(balanced_bce(logits, target, mask), torch.tensor([math.log(2)]))
+
+
+# --- matching, worked by hand
+
+SIM = torch.tensor([[0.9, 0.1, 0.3], [0.8, 0.2, 0.1], [0.2, 0.7, 0.6]])
+
+
+def test_mutual_nearest_on_a_three_by_three_similarity():
+    # rows' best columns: 0, 0, 1; columns' best rows: 0, 2, 2 -> (0, 0) and (2, 1) are mutual; (1, 0) is not
+    rows, cols = mutual_nearest(SIM)
+    assert list(zip(rows.tolist(), cols.tolist(), strict=True)) == [(0, 0), (2, 1)]
+
+
+def test_the_paper_s_rule_gives_every_point_its_best_pixel():
+    rows, cols = nearest_to_each_column(SIM)
+    assert rows.tolist() == [0, 2, 2] and cols.tolist() == [0, 1, 2]
+
+
+def test_candidates_are_above_the_threshold_and_capped_by_score():
+    scores = torch.tensor([0.95, 0.5, 0.91, 0.99])
+    assert candidates(scores, 0.9, None).tolist() == [0, 2, 3]
+    assert candidates(scores, 0.9, 2).tolist() == [0, 3]
+
+
+def test_matches_carry_the_cosine_similarity_of_high_score_keypoints():
+    frame, kp2d, kp3d = tiny_frame()
+    stages = tiny_modules()
+    matcher = stages["matcher"]
+    with torch.no_grad():
+        features = features_of(stages, frame, kp2d, kp3d)
+        z2, z3, f2, f3 = torch.nn.Module.__call__(matcher, features.desc2d, features.desc3d)
+    threshold = min(float(z2.sigmoid().median()), float(z3.sigmoid().median()))  # at least half of each side pass
+    matcher.conf.update(score_threshold=threshold)
+    matches = matcher(frame.without_ground_truth(), kp2d, kp3d, features)
+    assert len(matches) > 0 and np.all(z2.sigmoid().numpy()[matches.index2d] > threshold)
+    assert np.all(z3.sigmoid().numpy()[matches.index3d] > threshold)
+    expected = (f2[matches.index2d] * f3[matches.index3d]).sum(1).numpy()
+    np.testing.assert_allclose(matches.score, expected, rtol=1e-5, atol=1e-6)
+    assert len(np.unique(matches.index2d)) == len(matches) == len(np.unique(matches.index3d))  # mutual
+    matcher.conf.update(mutual=False)  # the paper's rule: every selected point gets a pixel
+    assert len(matcher(frame, kp2d, kp3d, features)) == int((z3.sigmoid() > threshold).sum())
+
+
+# --- the encoders' layout and the stages' agreement
+
+
+def test_descriptors_are_local_then_the_frame_s_global_feature():
+    frame, kp2d, kp3d = tiny_frame()
+    stages = tiny_modules()
+    with torch.no_grad():
+        for desc in (stages["encoder2d"](frame, kp2d), stages["encoder3d"](frame, kp3d)):
+            local, glob = desc[:, : D - G], desc[:, D - G :]
+            torch.testing.assert_close(local.norm(dim=1), torch.ones(len(desc)))
+            torch.testing.assert_close(glob, glob[:1].expand_as(glob))
+
+
+def test_stages_refuse_another_global_width():
+    exchanger = CorrI2PExchanger(TINY["exchanger"])
+    encoder = CorrI2PPointEncoder({**TINY["encoder3d"], "global_dim": G + 8, "global_mlp": (16, G + 8)})
+    reason = exchanger.check_compatible({"encoder3d": encoder})
+    assert (
+        reason
+        == f"exchanger 'corri2p-exchange' has global_dim {G} but encoder3d 'corri2p-pointnet2' has global_dim {G + 8}"
+    )
+    assert CorrI2PMatcher({**TINY["matcher"], "descriptor_dim": D + 8}).check_compatible({"exchanger": exchanger})
+
+
+@pytest.mark.parametrize("size", ["PAPER", "CPU"])
+def test_the_method_s_configs_build_and_agree(size):
+    conf = getattr(configs, size)
+    upstream = {kind: cls(conf[kind]) for kind, cls in zip(KINDS[:3], CLASSES[:3], strict=True)}
+    assert CorrI2PMatcher(conf["matcher"]).check_compatible(upstream) is None
+    assert upstream["exchanger"].check_compatible(upstream) is None
+
+
+# --- training
+
+
+def test_every_parameter_gets_a_gradient_from_the_loss():
+    frame, kp2d, kp3d = tiny_frame()
+    stages = tiny_modules()
+    loss, terms = stages["matcher"].loss(frame, kp2d, kp3d, features_of(stages, frame, kp2d, kp3d))
+    assert set(terms) == {"circle", "overlap", "pairs"} and terms["pairs"] >= 30
+    loss.backward()
+    dead = [
+        f"{k}.{n}" for k, m in stages.items() for n, p in m.named_parameters() if p.grad is None or not p.grad.any()
+    ]
+    assert dead == []
+
+
+def test_the_loss_falls_when_training_on_one_frame():
+    frame, kp2d, kp3d = tiny_frame()
+    stages = tiny_modules()
+    optimiser = torch.optim.Adam([p for m in stages.values() for p in m.parameters()], lr=1e-3)
+    history = []
+    for _ in range(40):
+        loss, terms = stages["matcher"].loss(frame, kp2d, kp3d, features_of(stages, frame, kp2d, kp3d))
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+        history.append((loss.item(), terms["circle"], terms["overlap"]))
+    (first, circle0, overlap0), (last, circle1, overlap1) = history[0], history[-1]
+    # measured when written: total 4.89 -> 3.65, circle 3.50 -> 3.33, overlap 2.78 -> 0.65
+    assert last < 0.85 * first and circle1 < circle0 and overlap1 < 0.5 * overlap0
+
+
+def sample(stages, seed: int, cut: int = 0) -> dict:
+    """a tiny frame's prepared sample; `cut` drops that many 2D and 3D keypoints, so two samples differ in size."""
+    frame, kp2d, kp3d = tiny_frame(seed)
+    if cut:
+        kp2d = Keypoints2D(kp2d.uv[:-cut])
+        kp3d = Keypoints3D.from_index(frame, kp3d.index[:-cut])
+    inputs = {k: prepare_stage(k, stages[k], frame, kp2d, kp3d, {}) for k in KINDS}
+    return {"inputs": inputs, "n2d": len(kp2d), "n3d": len(kp3d)}
+
+
+def loss_and_grads(stages, samples):
+    for module in stages.values():
+        module.zero_grad(set_to_none=True)
+    loss, terms = BatchForward(stages)(collate_samples(samples))
+    loss.backward()
+    return (
+        loss.detach(),
+        terms,
+        {f"{k}.{n}": p.grad.clone() for k, m in stages.items() for n, p in m.named_parameters()},
+    )
+
+
+def test_a_batch_of_two_gives_the_mean_loss_and_gradients_of_its_frames():
+    stages = tiny_modules()
+    a, b = sample(stages, 0), sample(stages, 3, cut=20)
+    assert (a["n2d"], a["n3d"]) != (b["n2d"], b["n3d"])  # different counts: the batch pads one of them
+    loss_a, terms_a, grads_a = loss_and_grads(stages, [a])
+    loss_b, terms_b, grads_b = loss_and_grads(stages, [b])
+    loss_ab, terms_ab, grads_ab = loss_and_grads(stages, [a, b])
+    torch.testing.assert_close(loss_ab, (loss_a + loss_b) / 2, atol=1e-5, rtol=1e-5)
+    for key in ("circle", "overlap", "pairs"):
+        assert terms_ab[key] == pytest.approx((terms_a[key] + terms_b[key]) / 2, rel=1e-5)
+    for name, grad in grads_ab.items():
+        torch.testing.assert_close(grad, (grads_a[name] + grads_b[name]) / 2, atol=1e-5, rtol=1e-4, msg=name)
+
+
+def test_the_per_frame_loss_is_the_batch_of_one():
+    frame, kp2d, kp3d = tiny_frame()
+    stages = tiny_modules()
+    with torch.no_grad():
+        alone, _ = stages["matcher"].loss(frame, kp2d, kp3d, features_of(stages, frame, kp2d, kp3d))
+        batched, _ = BatchForward(stages)(collate_samples([sample(stages, 0)]))
+    torch.testing.assert_close(alone, batched, atol=1e-5, rtol=1e-5)
+
+
+# --- the method
+
+
+def test_the_method_declares_its_sizes_and_presets(monkeypatch):
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "classic,corri2p")
+    registry = build_registry(strict=True)
+    method = registry.method("corri2p")
+    assert [s.name for s in method.sizes] == ["paper", "cpu-size"] and method.weights == ()
+    owned = {name for name, preset in registry.presets.items() if preset.method == "corri2p"}
+    assert owned == {"corri2p", "corri2p-paper", "corri2p-ablation"}
+    (row,) = registry.presets["corri2p"].combinations
+    assert row["variant"] == "cpu-size" and row["encoder2d"] == "corri2p-resnet"
+    assert row["confs"]["extractor2d"] == {"stride": 16, "max_keypoints": configs.CPU_PIXELS}
+    assert row["confs"]["extractor3d"] == {"max_keypoints": configs.CPU_POINTS}
+    (paper,) = registry.presets["corri2p-paper"].combinations
+    assert paper["variant"] == "" and paper["confs"] == {**configs.PAPER, "extractor3d": {"max_keypoints": 40960}}
+    oracle = registry.presets["corri2p-ablation"].combinations[-1]
+    assert oracle["matcher"] == "oracle" and oracle["encoder2d"] == oracle["exchanger"] == "none"
+    assert oracle["confs"]["extractor2d"] == {"stride": 16, "max_keypoints": configs.CPU_PIXELS}  # the same pixels
+
+
+def test_listing_the_plugin_imports_no_torch():
+    code = "import sys, i2pbench_corri2p.plugin as p; p.corri2p(); print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
