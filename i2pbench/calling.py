@@ -10,11 +10,10 @@ torch.inference_mode, training with autograd on.
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
-
-import torch
 
 from . import contracts
 from .components import FEATURES2D, FEATURES3D, GROUND_TRUTH, Component
@@ -82,6 +81,8 @@ def call_stage(component: Component, frame: Frame, inputs: StageInputs) -> Stage
 
 
 def _synchronize() -> None:
-    """Wait for queued GPU work, so a stage's seconds include the kernels it launched."""
-    if torch.cuda.is_available() and torch.cuda.is_initialized():
+    """Wait for queued GPU work, so a stage's seconds include the kernels it launched (none unless torch is loaded:
+    a classic stage never imports it)."""
+    torch = sys.modules.get("torch")
+    if torch is not None and torch.cuda.is_available() and torch.cuda.is_initialized():
         torch.cuda.synchronize()

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
-from typing import Any
+import sys
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 
 from .errors import StageError
 from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
+
+if TYPE_CHECKING:
+    import torch
 
 
 class ContractError(StageError):
@@ -54,8 +57,9 @@ def check_keypoints3d(kp: object, frame: Frame, component: str) -> Keypoints3D:
 def check_descriptors(desc: object, count: int, component: str) -> torch.Tensor | None:
     if desc is None:
         return None
+    torch = sys.modules.get("torch")  # loaded if desc is a tensor: a classic run, which never imports it, makes none
     _require(
-        isinstance(desc, torch.Tensor) and desc.ndim == 2 and desc.shape[0] == count,
+        torch is not None and isinstance(desc, torch.Tensor) and desc.ndim == 2 and desc.shape[0] == count,
         component,
         f"descriptors must be a [{count} x D] tensor, got {_shape(desc)}",
     )

@@ -25,14 +25,14 @@ from collections.abc import Sequence
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any
 
-import torch
-
 from .errors import I2PBenchError
 from .lifeline import exit_with_parent
 from .timeout import StageTimeout
 from .trace import FrameOutcome, StageRecord
 
 if TYPE_CHECKING:
+    import torch
+
     from .pipeline import Pipeline
     from .types import Frame
 
@@ -105,7 +105,9 @@ class _Child:
             payload = pickle.dumps(pipeline)
         except Exception as exc:
             raise IsolationError(f"the pipeline does not pickle ({type(exc).__name__}: {exc})") from None
-        self._send(("load", payload, torch.get_num_threads()))
+        from .runs.environment import threads
+
+        self._send(("load", payload, threads()))
         limit = None if timeout_s is None else max(START_LIMIT_S, timeout_s)
         reply = self._receive(time.monotonic(), limit, f"{KILLED} while starting")
         if reply[0] == "error":

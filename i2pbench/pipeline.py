@@ -15,12 +15,11 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import sys
 import traceback
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
-
-import torch
+from typing import TYPE_CHECKING, Any
 
 from . import contracts, interrupts
 from .calling import StageInputs, call_stage
@@ -35,7 +34,6 @@ from .components import (
     POINTS,
     STAGE_ORDER,
     Component,
-    LearnedComponent,
 )
 from .errors import PluginError, StageError
 from .isolation import IsolationError, ProcessIsolation, isolation_from_env
@@ -43,6 +41,11 @@ from .plugins import Registry
 from .timeout import StageTimeout, TimeLimiter, timeout_from_env
 from .trace import Failure, FrameOutcome, StageRecord, Upstream
 from .types import Frame, Keypoints2D, Keypoints3D
+
+if TYPE_CHECKING:  # a pipeline of classic stages runs without torch; learned stages bring it
+    import torch
+
+    from .learned import LearnedComponent
 
 NONE = "none"  # a stage set to "none" is skipped
 REQUIRED_STAGES = ("extractor2d", "extractor3d", "matcher", "solver")
@@ -134,18 +137,15 @@ class Pipeline:
     def build(
         cls, registry: Registry, combination: Combination, timeout_s: float | None | str = "env", isolate: str = "env"
     ) -> Pipeline:
-        missing = [k for k in REQUIRED_STAGES if combination.name(k) == NONE]
-        if missing:
-            raise PluginError(f"combination {combination.label!r} has no {', '.join(missing)}")
-        stages = {}
-        for kind in STAGE_ORDER:
-            if combination.name(kind) != NONE:
-                component_cls = registry.component(kind, combination.name(kind))
-                stages[kind] = component_cls(combination.confs.get(kind))
+        classes = stage_classes(registry, combination)
+        stages = {kind: component_cls(combination.confs.get(kind)) for kind, component_cls in classes.items()}
         return cls(combination, stages, timeout_s, isolate)
 
     def learned_modules(self) -> dict[str, LearnedComponent]:
-        return {k: c for k, c in self.stages.items() if isinstance(c, LearnedComponent)}
+        learned = sys.modules.get("i2pbench.learned")  # a learned stage's class subclasses it, so it is loaded then
+        if learned is None:
+            return {}
+        return {k: c for k, c in self.stages.items() if isinstance(c, learned.LearnedComponent)}
 
     def model_size_mb(self) -> float:
         """Size of all learned parameters stored as float32."""
@@ -195,8 +195,8 @@ class Pipeline:
         upstream: Upstream | None = None,
     ) -> FrameOutcome:
         """Run the stages in this process (under `limiter` if given), as a benchmark does (under
-        torch.inference_mode); `listener` hears each stage as it starts; from the solver on when given a stored
-        `upstream`."""
+        torch.inference_mode once any stage has loaded torch); `listener` hears each stage as it starts; from the
+        solver on when given a stored `upstream`."""
         progress = _Progress(listener)
         work = functools.partial(self._inference, frame, progress, upstream)
         mark = interrupts.watch()
@@ -222,8 +222,22 @@ class Pipeline:
         return FrameOutcome.of(tuple(records), Failure(component, kind, message))
 
     def _inference(self, frame: Frame, progress: _Progress, upstream: Upstream | None) -> None:
+        torch = sys.modules.get("torch")
+        if torch is None:  # no stage has loaded torch (a classic pipeline): there is no autograd to turn off
+            _walk(self.stages, frame, progress, upstream)
+            return
         with torch.inference_mode():
             _walk(self.stages, frame, progress, upstream)
+
+
+def stage_classes(registry: Registry, combination: Combination) -> dict[str, type[Component]]:
+    """The component class of each stage the combination names, in data-flow order (imported now: a learned
+    stage's module imports torch); refuses a combination without every required stage."""
+    missing = [k for k in REQUIRED_STAGES if combination.name(k) == NONE]
+    if missing:
+        raise PluginError(f"combination {combination.label!r} has no {', '.join(missing)}")
+    named = [kind for kind in STAGE_ORDER if combination.name(kind) != NONE]
+    return {kind: registry.component(kind, combination.name(kind)) for kind in named}
 
 
 def _walk(

@@ -17,11 +17,10 @@ from __future__ import annotations
 
 import os
 import queue
+import sys
 import threading
 from collections.abc import Callable
 from typing import Any
-
-import torch
 
 DEFAULT_TIMEOUT_S = 300.0
 ENV_VAR = "I2PBENCH_STAGE_TIMEOUT_S"
@@ -56,18 +55,26 @@ class _Task:
         self.done = threading.Event()
         self.value: Any = None
         self.error: BaseException | None = None
-        # torch's grad and inference modes are thread-local: the worker must run under the caller's.
-        self.grad = torch.is_grad_enabled()
-        self.inference = torch.is_inference_mode_enabled()
+        # torch's grad and inference modes are thread-local: the worker must run under the caller's. Without torch
+        # loaded no stage has set a mode (a pipeline of classic stages never imports it), so there is none to share.
+        torch = sys.modules.get("torch")
+        self.modes = None if torch is None else (torch.is_inference_mode_enabled(), torch.is_grad_enabled())
 
     def run(self) -> None:
         try:
-            with torch.inference_mode(self.inference), torch.set_grad_enabled(self.grad):
-                self.value = self.fn()
+            self.value = self._call()
         except BaseException as exc:  # handed back to the caller, who decides what it means
             self.error = exc
         finally:
             self.done.set()
+
+    def _call(self) -> Any:
+        if self.modes is None:
+            return self.fn()
+        torch = sys.modules["torch"]
+        inference, grad = self.modes
+        with torch.inference_mode(inference), torch.set_grad_enabled(grad):
+            return self.fn()
 
 
 class TimeLimiter:

@@ -14,13 +14,14 @@ import os
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
-
-import torch
+from typing import TYPE_CHECKING, Any
 
 from .errors import WeightsError
 from .pipeline import Pipeline
 from .provenance import git_commit
+
+if TYPE_CHECKING:  # checkpoints are read and written where a learned stage runs, not by every run
+    import torch
 
 FORMAT = "i2pbench-checkpoint/1"
 EXTRACTOR_KINDS = ("extractor2d", "extractor3d")
@@ -60,6 +61,8 @@ def file_digest(path: Path) -> str:
 def content_digest(meta_text: str, state: dict[str, dict[str, torch.Tensor]]) -> str:
     """sha256 of the metadata and every tensor's bytes, in a fixed order: torch's loader skips the zip CRCs, so a
     flipped bit in a weight would otherwise load silently."""
+    import torch
+
     h = hashlib.sha256(meta_text.encode())
     for kind in sorted(state):
         for name in sorted(state[kind]):
@@ -81,6 +84,8 @@ def _jsonable(value: Any) -> Any:
 
 def save_checkpoint(path: str | Path, pipeline: Pipeline, **meta: Any) -> Path:
     """Write atomically (temp file + rename), so an interrupted save never leaves a truncated checkpoint."""
+    import torch
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     full_meta = {
@@ -119,6 +124,8 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
 
 @functools.lru_cache(maxsize=8)  # a few shipped checkpoints of ~10 MB each
 def _read_checkpoint(path: Path, stamp: tuple[int, int, int]) -> Checkpoint:
+    import torch
+
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
         meta = json.loads(payload["meta"])
