@@ -179,7 +179,7 @@ def _grid_file(path: str):
 
 def run(args: argparse.Namespace) -> int:
     from .. import leaderboard
-    from ..devices import resolve_device
+    from ..devices import resolve_device_name
     from ..errors import DataError
     from ..plugins import default_registry
     from ..protocol import Protocol
@@ -189,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
     if args.isolate:  # Pipeline.build reads it; worker processes receive pipelines built here
         os.environ["I2PBENCH_ISOLATE"] = args.isolate
     threads = fix_threads(args.threads)
-    args.device = str(resolve_device(args.device))  # resolved once: "auto" would read differently in the record
+    args.device = resolve_device_name(args.device)  # resolved once: "auto" would read differently in the record
     registry = default_registry()
     combinations = _combinations(registry, args)
     dataset = open_dataset(registry, args)

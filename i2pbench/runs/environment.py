@@ -3,6 +3,9 @@
 Latency depends on the thread count, so runs fix it (torch, OpenCV and numpy's BLAS alike) rather than inherit
 whatever the machine's default is, and record it. BLAS matters as much as torch: on a busy machine numpy's default
 threads made the protocol's point transform of one KITTI scan 8-60x slower than on one thread.
+
+torch is set and asked only when something has loaded it (a learned stage): a classic run never imports it. One
+loaded after `fix_threads` (building a learned stage imports it) gets the same count from `sync_torch_threads`.
 """
 
 from __future__ import annotations
@@ -10,10 +13,11 @@ from __future__ import annotations
 import importlib.metadata
 import os
 import platform
+import sys
 
 import cv2
-import torch
 
+from ..devices import torch_gpu_build
 from ..provenance import git_commit, git_dirty
 
 PACKAGES = (
@@ -28,6 +32,8 @@ PACKAGES = (
     "poselib",
 )
 MAX_DEFAULT_THREADS = 4  # the default thread count: this, or fewer on smaller machines
+_fixed: int | None = None  # the count `fix_threads` last set
+_pending: int | None = None  # that count, while torch (not loaded then) has yet to be given it
 
 
 def default_threads() -> int:
@@ -35,16 +41,54 @@ def default_threads() -> int:
 
 
 def fix_threads(n: int | None = None) -> int:
-    """Set torch's, OpenCV's and BLAS's thread counts to `n` (default `default_threads()`); returns it."""
-    n = n or default_threads()
-    torch.set_num_threads(n)
+    """Set torch's (now, or when it loads: `sync_torch_threads`), OpenCV's and BLAS's thread counts to `n` (default
+    `default_threads()`); returns it."""
+    global _fixed, _pending
+    n = _fixed = n or default_threads()
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(n)
+    _pending = None if torch is not None else n
     cv2.setNumThreads(n)
+    _limit_blas(n)
+    return n
+
+
+def _limit_blas(n: int) -> None:
     try:
         from threadpoolctl import threadpool_limits
     except ImportError:  # BLAS keeps its default; environment() records what it is
-        return n
+        return
     threadpool_limits(limits=n, user_api="blas")
-    return n
+
+
+def sync_torch_threads() -> None:
+    """Give torch the count `fix_threads` set, once, if it was loaded since: called when a run's stages are built,
+    since a learned stage's module is what imports torch."""
+    global _pending
+    torch = sys.modules.get("torch")
+    if _pending is not None and torch is not None:
+        torch.set_num_threads(_pending)
+        _limit_blas(_pending)  # and any BLAS library torch brought
+        _pending = None
+
+
+def threads() -> int:
+    """The thread count torch runs (or would run) stages with: its own when loaded, else the one `fix_threads` set."""
+    if "torch" in sys.modules or _fixed is None:  # nothing set yet: torch's default, which only torch knows
+        import torch
+
+        return torch.get_num_threads()
+    return _fixed
+
+
+def _cuda_name() -> str | None:
+    """The first GPU's name, or None; a torch built without GPU support has none, known without importing it."""
+    if not torch_gpu_build():
+        return None
+    import torch
+
+    return torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
 
 
 def blas_threads() -> dict[str, int]:
@@ -72,9 +116,9 @@ def environment() -> dict:
         "machine": platform.machine(),
         "processor": platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(),
-        "torch_threads": torch.get_num_threads(),
+        "torch_threads": threads(),
         "opencv_threads": cv2.getNumThreads(),
         "blas_threads": blas_threads(),
-        "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
+        "cuda": _cuda_name(),
         "node": platform.node(),
     }

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import torch
 
 from ..components import STAGE_ORDER
 from ..correspondence import true_match_mask
@@ -32,6 +31,7 @@ from ..metrics import pose_errors
 from ..pipeline import FrameOutcome
 from ..protocol import Protocol
 from ..types import Frame, PoseEstimate
+from .environment import threads
 from .jobs import Job, labels, upstream_key
 from .store import ResultsStore
 from .upstream import StoredUpstream
@@ -179,7 +179,7 @@ def _record(
         "n_inliers": outcome.n_inliers,
         "n_true_matches": true_matches(frame, outcome),
         "model_size_mb": job.pipeline.model_size_mb(),
-        "threads": torch.get_num_threads(),
+        "threads": threads(),
         "device": job.device,
         "t_total_s": sum(outcome.timings.values()),
         "t_load_s": load,

@@ -7,17 +7,17 @@ same less the solver, so every solver of a sweep shares it.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import torch
-
 from ..data.base import Dataset
-from ..pipeline import Combination, Pipeline
+from ..pipeline import Combination, Pipeline, stage_classes
 from ..plugins import Registry
 from ..protocol import Protocol
 from ..weights import apply_checkpoint, select_checkpoint
+from .environment import sync_torch_threads
 from .store import versioned_key
 from .upstream import FORMAT
 
@@ -73,7 +73,14 @@ def prepare(
 
 
 def _build(registry: Registry, combination: Combination) -> Pipeline:
-    """Build with a fixed torch seed, so an `untrained` row means the same initial weights in every run."""
+    """Build with a fixed torch seed, so an `untrained` row means the same initial weights in every run. The stages'
+    classes are imported first: a learned stage's module imports torch, which then gets the run's thread count before
+    any torch work; a combination none of whose modules imports torch needs no seed."""
+    stage_classes(registry, combination)
+    sync_torch_threads()
+    torch = sys.modules.get("torch")
+    if torch is None:
+        return Pipeline.build(registry, combination)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(UNTRAINED_SEED)
         return Pipeline.build(registry, combination)
