@@ -10,7 +10,7 @@ from typing import Any
 
 import yaml
 
-from .components import STAGE_ORDER
+from .components import STAGE_BASES, STAGE_ORDER
 from .errors import PluginError
 from .pipeline import NONE, REQUIRED_STAGES, Combination
 from .plugins import Registry
@@ -95,17 +95,20 @@ def _canonical(registry: Registry | None, kind: str, name: str) -> str:
 
 
 def prune_unconsumed(registry: Registry, names: Mapping[str, str], keep: set[str]) -> dict[str, str]:
-    """Drop optional stages (encoders, exchanger) whose outputs nothing downstream consumes, unless in `keep`."""
+    """Drop optional stages (encoders, exchanger) whose outputs nothing downstream consumes, unless in `keep`.
+
+    What a stage hands on is fixed by its kind (`calling.StageInputs.after`: an encoder's output is descriptors), so
+    it is judged by its kind's `provides` and imported only when kept: `--matcher oracle` over the default preset
+    imports none of the learned stages it drops, nor torch."""
     names, needed = dict(names), set()
     for kind in reversed(STAGE_ORDER):
         name = names.get(kind, NONE)
         if name == NONE:
             continue
-        component = registry.component(kind, name)
-        if kind in OPTIONAL_STAGES and kind not in keep and not component.provides & needed:
+        if kind in OPTIONAL_STAGES and kind not in keep and not STAGE_BASES[kind].provides & needed:
             names[kind] = NONE
             continue
-        needed |= component.consumes
+        needed |= registry.component(kind, name).consumes
     return names
 
 

@@ -1,26 +1,33 @@
 """Matchers without learned parameters: mutual nearest neighbours on cosine similarity (with a training loss for the
-encoders in front of it) and the ground-truth oracle that bounds what any matcher can do with given keypoints."""
+encoders in front of it) and the ground-truth oracle that bounds what any matcher can do with given keypoints.
+
+torch is imported where descriptors are compared, so that the oracle (numpy only) runs without it."""
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
-import torch
-import torch.nn.functional as F
 
 from i2pbench.api import GROUND_TRUTH, KEYPOINTS2D, KEYPOINTS3D, MATCHES, Matcher, StageError
 from i2pbench.correspondence import ground_truth_matches
 from i2pbench.types import Features, Frame, Keypoints2D, Keypoints3D, Matches
 
+if TYPE_CHECKING:
+    import torch
+
 
 def cosine_similarity(desc2d: torch.Tensor, desc3d: torch.Tensor) -> torch.Tensor:
     """[M2 x M3] cosine similarities of [M2 x D] and [M3 x D] descriptors."""
+    import torch.nn.functional as F
+
     return F.normalize(desc2d.float(), dim=-1) @ F.normalize(desc3d.float(), dim=-1).T
 
 
 def mutual_nearest(sim: torch.Tensor, min_similarity: float) -> Matches:
     """Pairs (i, j) where j is i's best column, i is j's best row, and sim[i, j] >= min_similarity."""
+    import torch
+
     if sim.numel() == 0:
         return Matches.empty()
     best3d = sim.argmax(dim=1)
@@ -56,6 +63,8 @@ class CosineMatcher(Matcher):
         return cosine_similarity(features.desc2d, features.desc3d)
 
     def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Matches:
+        import torch
+
         with torch.no_grad():
             return mutual_nearest(self.similarity(features), float(self.conf["min_similarity"]))
 
@@ -63,6 +72,8 @@ class CosineMatcher(Matcher):
         self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """Dual-softmax negative log-likelihood of the ground-truth pairs (ground_truth_matches with eps_c)."""
+        import torch
+
         sim = self.similarity(features)
         gt = ground_truth_matches(frame, kp2d, kp3d, self.conf["radius_px"])
         if len(gt) == 0:  # nothing to supervise; a zero that keeps the graph so a training step still runs
