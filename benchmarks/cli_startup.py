@@ -1,6 +1,7 @@
-"""Start-up of the command line: wall time of `i2pbench --help`, `i2pbench plugins` and a classic KITTI run (LSD,
-depth+reflectance, oracle matches, EPnP-RANSAC on the 6 real frames), each the median of `--repeat` runs and a ratio
-to `python -c pass` timed in the same run, so the numbers survive a busy machine. Also shown per command: the seconds
+"""Start-up of the command line: wall time of `i2pbench --help`, `i2pbench plugins` and two classic runs (LSD,
+depth+reflectance, oracle matches, EPnP-RANSAC; on the 6 real KITTI frames, and on 3 synthetic frames, which read no
+files), each the median of `--repeat` runs and a ratio to `python -c pass` timed in the same run, so the numbers
+survive a busy machine. Also shown per command: the seconds
 from `main` returning to the process ending (threads joined, atexit, teardown) and which heavy modules it imported.
 
 `--baseline REV` also times a git revision's code (extracted with `git archive` into a temporary folder and put first
@@ -45,11 +46,16 @@ class Timing:
 
 
 def commands(data_root: str, runs_dir: str) -> dict[str, list[str]]:
-    run = ["run", "--matcher", "oracle", "--dataset", "kitti", "--split", "all", "--data-root", data_root]
+    fresh = ["--runs-dir", runs_dir, "--overwrite", "--quiet"]  # every frame recomputed
+    kitti = ["run", "--matcher", "oracle", "--dataset", "kitti", "--split", "all", "--data-root", data_root]
+    stages = ["--extractor", "lsd", "--extractor3d", "depth+reflectance", "--matcher", "oracle"]
+    stages += ["--solver", "epnp-ransac"]
+    synthetic = ["run", *stages, "--dataset", "synthetic", "--split", "test", "--frames", "3"]
     return {
         "i2pbench --help": ["--help"],
         "i2pbench plugins": ["plugins"],
-        "classic oracle run": [*run, "--runs-dir", runs_dir, "--overwrite", "--quiet"],
+        "classic oracle run": [*kitti, *fresh],
+        "classic synthetic run": [*synthetic, *fresh],
     }
 
 

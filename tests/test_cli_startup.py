@@ -3,27 +3,38 @@
 import os
 import subprocess
 import sys
+from pathlib import Path
 
+import pandas as pd
 import pytest
 
 from i2pbench.cli import COMMANDS, build_parser, invoked
 
 HEAVY = {"torch", "scipy", "pandas"}
-# the console script's code, printing the modules loaded when the process ends
+# the console script's code, printing what still runs when `main` returns (threads the exit would wait for, child
+# processes) and the modules loaded when the process ends
 PROBE = """
-import atexit, sys
+import atexit, multiprocessing, sys, threading
 atexit.register(lambda: print("MODULES", *sorted(sys.modules), file=sys.stderr))
 from i2pbench.cli import main
 sys.argv[0] = "i2pbench"
-sys.exit(main())
+code = main()
+waited = [t.name for t in threading.enumerate() if not t.daemon and t is not threading.main_thread()]
+print("LINGERING", *waited, *(p.name for p in multiprocessing.active_children()), file=sys.stderr)
+sys.exit(code)
 """
+CLASSIC = ["--matcher", "oracle", "--extractor", "lsd", "--extractor3d", "depth+reflectance", "--solver", "epnp-ransac"]
 
 
-def _run(*argv: str) -> tuple[str, set[str]]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("I2PBENCH_")}
+def _run(*argv: str, env: dict[str, str] | None = None) -> tuple[str, set[str]]:
+    env = env or {k: v for k, v in os.environ.items() if not k.startswith("I2PBENCH_")}
     out = subprocess.run([sys.executable, "-c", PROBE, *argv], capture_output=True, text=True, env=env, check=True)
-    modules = next(line for line in out.stderr.splitlines() if line.startswith("MODULES ")).split()[1:]
+    modules = _line(out.stderr, "MODULES")
     return out.stdout, set(modules)
+
+
+def _line(stderr: str, tag: str) -> list[str]:
+    return next(line for line in stderr.splitlines() if line.split()[:1] == [tag]).split()[1:]
 
 
 def test_help_imports_no_command_module_and_none_of_torch_scipy_pandas():
@@ -60,3 +71,38 @@ def test_only_the_invoked_command_is_built(argv, command):
 def test_a_command_built_alone_parses_as_in_the_whole_command_line():
     argv = ["compare", "new.csv", "base.csv", "--tolerance", "acc=-1"]
     assert vars(build_parser(full=invoked(argv)).parse_args(argv)) == vars(build_parser().parse_args(argv))
+
+
+def _records(runs: Path) -> pd.DataFrame:
+    return pd.concat(pd.read_parquet(path) for path in sorted((runs / "synthetic-test" / "frames").glob("*.parquet")))
+
+
+@pytest.mark.parametrize(("stages", "learned"), [(CLASSIC, False), (["--preset", "default"], True)], ids=str)
+def test_a_classic_run_imports_no_torch_a_learned_one_does_and_both_fix_its_threads(tmp_path, stages, learned):
+    """torch is loaded by the learned stages that need it; the thread count set before it loads still reaches it."""
+    argv = ["run", *stages, "--dataset", "synthetic", "--split", "test", "--frames", "1", "--threads", "1", "--quiet"]
+    env = {k: v for k, v in os.environ.items() if not k.startswith("I2PBENCH_")}
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE, *argv, "--runs-dir", str(tmp_path)], capture_output=True, text=True, env=env
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    modules = set(_line(out.stderr, "MODULES"))
+    assert ("torch" in modules) is learned
+    assert ("i2pbench_edgeregnet.superpoint" in modules) is learned  # the encoders `--matcher oracle` drops
+    assert _line(out.stderr, "LINGERING") == []  # nothing for the exit to wait for
+    records = _records(tmp_path)
+    assert (records["threads"] == 1).all() and (records["status"] == "ok").all()
+
+
+@pytest.mark.parametrize(("cuda", "expected"), [("None", "False cpu"), ("'12.4'", "True -")])
+def test_whether_torch_has_gpu_support_is_read_without_importing_it(tmp_path, cuda, expected):
+    """A torch built without CUDA or ROCm resolves `--device auto` to cpu without being imported (here it cannot be)."""
+    fake = tmp_path / "torch"
+    fake.mkdir()
+    (fake / "__init__.py").write_text("raise ImportError('torch was imported')\n")
+    (fake / "version.py").write_text(f"from typing import Optional\ncuda: Optional[str] = {cuda}\nhip = None\n")
+    check = "from i2pbench.devices import resolve_device_name, torch_gpu_build as gpu\n"
+    check += "print(gpu(), '-' if gpu() else resolve_device_name('auto'))"
+    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, check=True, env=env)
+    assert out.stdout.split() == expected.split()
