@@ -1,11 +1,17 @@
 """Corruptions: robustness measured under the one protocol (ImageNet-C / KITTI-C style), for every method alike.
 
 A corruption changes what the sensors delivered, before the protocol moves the cloud: the image (kind "image"), the
-scan ("lidar"), or the calibration the stages are told ("geometry": K). It never touches the ground truth. The
-protocol takes T_gt from the dataset's true T_cam_lidar whatever a corruption returns, and when K is corrupted the
-true K travels with the ground truth as `Frame.K_gt` (hidden from the stages like T_gt): true matches, the oracle and
-the metrics use the camera that formed the image, while extractors, matchers and solvers work with the wrong one, as
-they would with a bad calibration.
+scan ("lidar"), or the geometry ("geometry": the K the stages are told, or a rigid motion of the cloud). It never
+touches the ground truth. The protocol takes T_gt from the dataset's true T_cam_lidar whatever a corruption returns,
+and when K is corrupted the true K travels with the ground truth as `Frame.K_gt` (hidden from the stages like T_gt):
+true matches, the oracle and the metrics use the camera that formed the image, while extractors, matchers and solvers
+work with the wrong one, as they would with a bad calibration.
+
+A corruption that `moves_cloud` (a tilted mount) returns a rigid motion M of the scan from `motion` instead of
+changing the frame: the protocol composes it into its own random transform, T = T_rand @ M, so the ground truth stays
+the truth, T_gt = T_cam_lidar @ inv(T). A corruption that `needs` an optional field of the frame (the ego motion) does
+not apply to a frame without it: `protocols` leaves it out of `all` for such data and refuses it by name, before any
+frame runs, and a frame that still meets it stops the run (`NotApplicable`), so it never becomes a 0 % row.
 
 Severity 0 is the identity; severities 1..len(levels) pick the corruption's parameter from its table `levels`
 (docs/robustness.md lists every table). The randomness comes from the protocol's generator for (seed, dataset, frame
@@ -15,7 +21,9 @@ id, corruption, severity), so a corrupted frame never depends on run order or on
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+import functools
+import sys
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -24,11 +32,16 @@ from .errors import I2PBenchError, PluginError
 from .types import SensorFrame
 
 if TYPE_CHECKING:
+    from .data.base import Dataset
     from .plugins import Registry
     from .protocol import Protocol
 
 KINDS = ("image", "lidar", "geometry")
 CHANGES = {"image": {"image"}, "lidar": {"points", "ring"}, "geometry": {"K"}}  # what each kind may change
+CHECKED = ("image", "points", "ring", "K", "ego_motion")  # the fields a corruption is checked not to change unasked
+OPTIONAL = {"ego_motion": "the LiDAR's ego motion, which KITTI gives where <root>/poses/<sequence>.txt exists and "
+            "nuScenes from its ego poses (docs/datasets.md)"}  # fmt: skip  # what `needs` may name, and where from
+ROTATION_TOL = 1e-9  # |R^T R - I| and |det R - 1| of a corruption's motion: it is computed, not read from a file
 MIN_LEVELS, MAX_LEVELS = 3, 5
 CLEAN, ALL = "clean", "all"  # --corruption words: the uncorrupted protocol, every registered corruption
 
@@ -37,14 +50,21 @@ class CorruptionError(I2PBenchError):
     """A corruption failed or broke its contract: the run stops, since a failed row would blame the method."""
 
 
+class NotApplicable(CorruptionError):
+    """A frame lacks what the corruption needs: it has no result under it (a failed row would blame the method)."""
+
+
 class Corruption:
-    """Base of every corruption: `corrupt` one sensor frame at one level of the table `levels`."""
+    """Base of every corruption: `corrupt` one sensor frame at one level of the table `levels` (or, one that
+    `moves_cloud`, give the rigid `motion` the protocol composes into its random transform)."""
 
     name: ClassVar[str] = ""
     kind: ClassVar[str] = ""  # one of KINDS: which part of the frame it changes
     meaning: ClassVar[str] = ""  # the physical effect it models, one sentence
     parameter: ClassVar[str] = ""  # what `levels` holds, with its unit
     levels: ClassVar[tuple[Any, ...]] = ()  # the parameter at severity 1, 2, ... (3 to 5 of them)
+    moves_cloud: ClassVar[bool] = False  # True: `motion` moves the scan rigidly; the protocol composes it into T_gt
+    needs: ClassVar[tuple[str, ...]] = ()  # optional SensorFrame fields it needs (of OPTIONAL); else it does not apply
 
     @property
     def severities(self) -> range:
@@ -55,13 +75,36 @@ class Corruption:
             raise PluginError(f"corruption {self.name!r} has severities 1..{len(self.levels)}, not {severity}")
         return self.levels[severity - 1]
 
+    def applies(self, sensor: SensorFrame) -> bool:
+        """Whether the frame has everything the corruption `needs` (a frame without its ego motion cannot be shifted
+        in time)."""
+        return all(getattr(sensor, name, None) is not None for name in self.needs)
+
     def apply(self, sensor: SensorFrame, severity: int, rng: np.random.Generator) -> SensorFrame:
         """The frame as the corrupted sensors would have delivered it; `sensor` itself at severity 0."""
         if severity == 0:
             return sensor
+        out = self._call(self.corrupt, sensor, severity, rng)
+        check_corrupted(sensor, out, self)
+        return out
+
+    def displacement(self, sensor: SensorFrame, severity: int, rng: np.random.Generator) -> np.ndarray | None:
+        """The checked rigid motion [4 x 4] of the scan (LiDAR frame) that the protocol composes into T_rand and so
+        into T_gt; None at severity 0 or for a corruption that does not `moves_cloud`."""
+        if severity == 0 or not self.moves_cloud:
+            return None
+        motion = self._call(self.motion, sensor, severity, rng)
+        check_motion(sensor, motion, self)
+        return np.asarray(motion, dtype=np.float64)
+
+    def _call(self, method: Callable[..., Any], sensor: SensorFrame, severity: int, rng: np.random.Generator) -> Any:
+        """`method(sensor, level, rng)`, refused on a frame it does not apply to; a failure names the corruption."""
         level = self.level(severity)
+        if not self.applies(sensor):
+            raise NotApplicable(f"corruption {self.name!r} does not apply to {sensor.dataset} frame {sensor.frame_id}: "
+                                f"{missing(self, sensor)}")  # fmt: skip
         try:
-            out = self.corrupt(sensor, level, rng)
+            return method(sensor, level, rng)
         except CorruptionError:
             raise
         except Exception as exc:  # a broken corruption names itself, not the dataset or a stage
@@ -69,11 +112,16 @@ class Corruption:
                 f"corruption {self.name!r} severity {severity} failed on {sensor.dataset} frame {sensor.frame_id}: "
                 f"{type(exc).__name__}: {exc}"
             ) from exc
-        check_corrupted(sensor, out, self)
-        return out
 
     def corrupt(self, sensor: SensorFrame, level: Any, rng: np.random.Generator) -> SensorFrame:
-        """`sensor` corrupted at `level` (an entry of `levels`); subclasses implement it, without mutating input."""
+        """`sensor` corrupted at `level` (an entry of `levels`); subclasses implement it, without mutating input.
+        One that only `moves_cloud` changes nothing the sensors delivered: `sensor` itself."""
+        if self.moves_cloud:
+            return sensor
+        raise NotImplementedError
+
+    def motion(self, sensor: SensorFrame, level: Any, rng: np.random.Generator) -> np.ndarray:
+        """[4 x 4] rigid motion of the scan in the LiDAR frame at `level`, for a corruption that `moves_cloud`."""
         raise NotImplementedError
 
     def describe(self, severity: int) -> dict[str, Any]:
@@ -92,6 +140,12 @@ def _plain(value: Any) -> Any:
     return list(value) if isinstance(value, tuple) else value
 
 
+def missing(corruption: Corruption, sensor: SensorFrame) -> str:
+    """What the frame lacks of what the corruption needs, in words ("" when nothing)."""
+    absent = [name for name in corruption.needs if getattr(sensor, name, None) is None]
+    return "; ".join(f"it needs {OPTIONAL.get(name, name)}, and this frame has none" for name in absent)
+
+
 def check_class(cls: type[Corruption], plugin: str) -> None:
     """Refuse, naming the plugin, a corruption class the protocol could not use consistently."""
     if cls.kind not in KINDS:
@@ -101,6 +155,12 @@ def check_class(cls: type[Corruption], plugin: str) -> None:
             f"plugin {plugin!r} registered corruption {cls.name!r} with {len(cls.levels)} levels; it needs "
             f"{MIN_LEVELS} to {MAX_LEVELS}, so means over severities stay comparable"
         )
+    unknown = sorted(set(cls.needs) - set(OPTIONAL))
+    if unknown:
+        raise PluginError(f"plugin {plugin!r} registered corruption {cls.name!r} needing {unknown}; a corruption may "
+                          f"need only optional frame fields: {sorted(OPTIONAL)}")  # fmt: skip
+    if cls.moves_cloud and cls.motion is Corruption.motion:
+        raise PluginError(f"plugin {plugin!r} registered corruption {cls.name!r} that moves_cloud without a motion")
 
 
 def check_corrupted(before: SensorFrame, after: object, corruption: Corruption) -> None:
@@ -110,7 +170,7 @@ def check_corrupted(before: SensorFrame, after: object, corruption: Corruption) 
         raise CorruptionError(f"{where} returned {type(after).__name__}, expected SensorFrame")
     if not np.array_equal(after.T_cam_lidar, before.T_cam_lidar) or after.match_radius_px != before.match_radius_px:
         raise CorruptionError(f"{where} changed the ground truth (T_cam_lidar or eps_c); no corruption may")
-    changed = {f for f in ("image", "points", "ring", "K") if not _same(getattr(before, f), getattr(after, f))}
+    changed = {f for f in CHECKED if not _same(getattr(before, f), getattr(after, f))}
     if (after.dataset, after.frame_id) != (before.dataset, before.frame_id) or changed - CHANGES[corruption.kind]:
         raise CorruptionError(f"{where} changed {sorted(changed)}; a {corruption.kind} corruption may change only "
                               f"{sorted(CHANGES[corruption.kind])}")  # fmt: skip
@@ -119,8 +179,23 @@ def check_corrupted(before: SensorFrame, after: object, corruption: Corruption) 
         raise CorruptionError(f"{where}: {problem}")
 
 
-def _same(a: np.ndarray, b: np.ndarray) -> bool:
+def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    if a is None or b is None:
+        return a is b
     return a is b or (a.shape == b.shape and a.dtype == b.dtype and np.array_equal(a, b))
+
+
+def check_motion(sensor: SensorFrame, motion: object, corruption: Corruption) -> None:
+    """A corruption's motion is a finite rigid transform: the protocol composes it into the ground truth."""
+    where = f"corruption {corruption.name!r} on {sensor.dataset} frame {sensor.frame_id}"
+    M = np.asarray(motion, dtype=np.float64) if isinstance(motion, np.ndarray) else None
+    if M is None or M.shape != (4, 4) or not np.isfinite(M).all():
+        raise CorruptionError(f"{where}: its motion must be a finite 4 x 4 array, got {type(motion).__name__}")
+    R = M[:3, :3]
+    off = max(float(np.abs(R.T @ R - np.eye(3)).max()), abs(float(np.linalg.det(R)) - 1.0))
+    if off > ROTATION_TOL or not np.array_equal(M[3], [0.0, 0.0, 0.0, 1.0]):
+        raise CorruptionError(f"{where}: its motion is not a rigid transform (rotation off by {off:.3g}, last row "
+                              f"{M[3].tolist()})")  # fmt: skip
 
 
 def _invalid(before: SensorFrame, after: SensorFrame) -> str:
@@ -141,21 +216,73 @@ def with_points(sensor: SensorFrame, keep: np.ndarray) -> SensorFrame:
     return dataclasses.replace(sensor, points=sensor.points[keep], ring=sensor.ring[keep])
 
 
+def unavailable(corruption: Corruption, dataset: Dataset, frame_ids: Sequence[str]) -> str:
+    """Why `corruption` cannot run on these frames ("" when it can). Only a corruption that `needs` something loads
+    them (once, before the run); a frame that does not load is left to the run, which records it failed."""
+    if not corruption.needs:
+        return ""
+    from .errors import DataError
+
+    lacking: list[tuple[str, str]] = []
+    for frame_id in frame_ids:
+        try:
+            sensor = dataset.load(frame_id)
+        except DataError:
+            continue
+        if not corruption.applies(sensor):
+            lacking.append((frame_id, missing(corruption, sensor)))
+    if not lacking:
+        return ""
+    first, why = lacking[0]
+    return f"{len(lacking)} of the {len(frame_ids)} {dataset.name} frames (the first {first}) cannot take it: {why}"
+
+
 def protocols(
-    registry: Registry, base: Protocol, specs: Sequence[str], severities: Sequence[int] | None = None
+    registry: Registry,
+    base: Protocol,
+    specs: Sequence[str],
+    severities: Sequence[int] | None = None,
+    dataset: Dataset | None = None,
+    frame_ids: Sequence[str] | None = None,
 ) -> list[Protocol]:
     """The protocols `--corruption` names, in order, each once: `clean`, `NAME` (every severity, or `severities`),
-    `NAME:S`, or `all` (every registered corruption, as NAME)."""
+    `NAME:S`, or `all` (every registered corruption that applies, as NAME).
+
+    A corruption runs on every frame of the run or on none, so its rows cover the clean rows' frames. Given the
+    `dataset` (and the `frame_ids` to run, default all), one that needs what a frame lacks is left out of `all`
+    (said on stderr) and refused by name; without it, `all` leaves out every corruption with `needs` (nothing to
+    check them against) and a named one stops the run at the first frame it does not apply to."""
+    ids = None if dataset is None else list(frame_ids if frame_ids is not None else dataset.frame_ids())
+    reason = functools.cache(lambda name: _unavailable(registry.corruption(name)(), dataset, ids))
     out: list[Protocol] = []
     for spec in specs:
         name, sep, severity = spec.partition(":")
         if name == CLEAN:
             chosen = [base]
         else:
-            names = sorted(registry.corruptions) if name == ALL else [name]
+            if name != ALL and dataset is not None and reason(name):
+                raise NotApplicable(f"--corruption {spec}: {reason(name)}")
+            names = _applicable(registry, reason) if name == ALL else [name]
             chosen = [p for n in names for p in _of(registry, base, n, severity if sep else None, severities)]
         out += [p for p in chosen if p not in out]
     return out
+
+
+def _unavailable(corruption: Corruption, dataset: Dataset | None, frame_ids: Sequence[str] | None) -> str:
+    if dataset is None or frame_ids is None:
+        return f"it needs {', '.join(corruption.needs)}, with no dataset to check" if corruption.needs else ""
+    return unavailable(corruption, dataset, frame_ids)
+
+
+def _applicable(registry: Registry, reason: Callable[[str], str]) -> list[str]:
+    """Every registered corruption that applies, by name; each left out is said on stderr, with why."""
+    names = []
+    for name in sorted(registry.corruptions):
+        if reason(name):
+            print(f"i2pbench: note: corruption {name!r} left out of 'all': {reason(name)}", file=sys.stderr)
+        else:
+            names.append(name)
+    return names
 
 
 def _of(

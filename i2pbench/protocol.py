@@ -8,8 +8,10 @@ which other frames run.
 A corruption (docs/robustness.md) is part of the card too: `corrupted(corruption, severity)` names one, and `apply`
 corrupts the dataset's frame before moving it, with its own generator for (seed, dataset, frame, corruption,
 severity). The ground truth is always the dataset's: T_gt comes from the uncorrupted T_cam_lidar, and a corrupted K
-keeps the true one beside it (`Frame.K_gt`). The clean card is the card as it was before corruptions existed, so
-clean results keep their identity and cache keys.
+keeps the true one beside it (`Frame.K_gt`). A corruption that moves the cloud (a tilt the yaw-only T_rand never
+draws) gives its rigid motion M to the protocol, which moves the cloud by T_rand @ M and keeps the truth true:
+T_gt = T_cam_lidar @ inv(T_rand @ M). The clean card is the card as it was before corruptions existed, so clean
+results keep their identity and cache keys.
 """
 
 from __future__ import annotations
@@ -85,6 +87,15 @@ class Protocol:
         rng = self.rng(sensor.dataset, sensor.frame_id, self.corruption, str(self.severity))
         return corruption.apply(sensor, self.severity, rng)
 
+    def motion(self, sensor: SensorFrame) -> np.ndarray | None:
+        """The corruption's rigid motion of the scan (LiDAR frame), composed before T_rand; None when it has none.
+        Its generator is salted apart from `corrupt`'s, so a corruption may both change the frame and move it."""
+        corruption = self.component()
+        if corruption is None or not corruption.moves_cloud:
+            return None
+        rng = self.rng(sensor.dataset, sensor.frame_id, self.corruption, str(self.severity), "motion")
+        return corruption.displacement(sensor, self.severity, rng)
+
     def random_transform(self, dataset: str, frame_id: str) -> np.ndarray:
         """T_rand for one frame: a yaw about LiDAR z and an x/y translation."""
         rng = self.rng(dataset, frame_id)
@@ -95,14 +106,17 @@ class Protocol:
     def apply(self, sensor: SensorFrame) -> Frame:
         """Turn a dataset frame into a registration problem (corrupted, under a corruption) with its ground truth.
 
-        What the stages see comes from the corrupted frame; the ground truth only from the dataset's."""
+        What the stages see comes from the corrupted frame; the ground truth only from the dataset's, and from the
+        whole motion the cloud was moved by (T_rand, after a corruption's own motion)."""
         if not np.isfinite(sensor.points).all():
             where = sensor.source or f"{sensor.dataset} frame {sensor.frame_id}"
             raise DataError(f"{where}: the scan contains NaN or infinite values; datasets must drop such returns")
         seen = self.corrupt(sensor)
         T_rand = self.random_transform(sensor.dataset, sensor.frame_id)
+        M = self.motion(sensor)
+        moved = T_rand if M is None else T_rand @ M  # None: exactly the clean T_rand, bit for bit
         points = seen.points.copy()
-        points[:, :3] = transform_points(T_rand, seen.points[:, :3].astype(np.float64)).astype(np.float32)
+        points[:, :3] = transform_points(moved, seen.points[:, :3].astype(np.float64)).astype(np.float32)
         return Frame(
             dataset=sensor.dataset,
             frame_id=sensor.frame_id,
@@ -111,7 +125,7 @@ class Protocol:
             ring=seen.ring,
             ranges=np.linalg.norm(seen.points[:, :3], axis=1).astype(np.float32),
             K=seen.K,
-            T_gt=sensor.T_cam_lidar @ invert(T_rand),
+            T_gt=sensor.T_cam_lidar @ invert(moved),
             match_radius_px=sensor.match_radius_px,
             T_init=sensor.T_cam_lidar,
             K_gt=None if np.array_equal(seen.K, sensor.K) else sensor.K,
