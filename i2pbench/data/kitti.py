@@ -1,7 +1,9 @@
-"""KITTI Odometry: `sequences/NN/{velodyne/NNNNNN.bin, image_2/NNNNNN.png, image_3/, calib.txt}`.
+"""KITTI Odometry: `sequences/NN/{velodyne/NNNNNN.bin, image_2/NNNNNN.png, image_3/, calib.txt, times.txt}`, and
+the ground-truth poses `poses/NN.txt` where the benchmark gives them (sequences 00-10).
 
 `read_frame` reads one frame from any directory in this layout, so the synthetic dataset (which writes the same
-layout) shares the reader, its checks and its error messages.
+layout) shares the reader, its checks and its error messages. Where a sequence has its poses file, a frame carries the
+LiDAR's ego motion (`SensorFrame.ego_motion`), from its neighbours' poses; without one it is None.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from ..errors import DataError
 from ..types import SensorFrame
 from .base import Dataset
 from .calibration import check_finite, check_intrinsics, check_rotation
+from .ego_motion import around
 from .images import read_image
 from .scanlines import recover_rings
 
@@ -26,6 +29,7 @@ SPLIT_SEQUENCES: dict[str, tuple[str, ...]] = {
     "test": ("09", "10"),
 }
 BENCHMARK_SEQUENCES = frozenset(f"{i:02d}" for i in range(22))  # KITTI Odometry's 00-21
+FRAME_PERIOD_S = 0.1  # KITTI's scans come at 10 Hz: the frame times of a sequence without times.txt
 
 
 def _parse_calib(path: Path) -> dict[str, np.ndarray]:
@@ -75,6 +79,65 @@ def camera_calib(calib_path: Path, camera: int) -> tuple[np.ndarray, np.ndarray]
     return K.copy(), T.copy()
 
 
+def _numbers(path: Path, per_line: int) -> np.ndarray:
+    """[n x per_line] float64 of a text file of numbers, one record a line; a bad line is an error naming it."""
+    rows = []
+    for lineno, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            row = [float(v) for v in line.split()]
+        except ValueError as exc:
+            raise DataError(f"{path}:{lineno}: not a number ({exc})") from exc
+        if len(row) != per_line or not np.isfinite(row).all():
+            raise DataError(f"{path}:{lineno}: expected {per_line} finite numbers, got {line.strip()[:80]!r}")
+        rows.append(row)
+    return np.array(rows, dtype=np.float64).reshape(-1, per_line)
+
+
+@lru_cache(maxsize=16)
+def _lidar_poses_cached(poses: str, calib: str, times: str | None, stamps: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """(world <- LiDAR [n x 4 x 4], times [n] s) of a sequence; `stamps` (the files' mtimes) key the cache."""
+    rows = _numbers(Path(poses), 12)
+    cam0 = np.tile(np.eye(4), (len(rows), 1, 1))
+    cam0[:, :3, :] = rows.reshape(-1, 3, 4)
+    for i, pose in enumerate(cam0):
+        check_rotation(pose[:3, :3], f"{poses}:{i + 1}", "the pose's rotation")
+    tr = np.eye(4)
+    tr[:3, :] = _tr(Path(calib))
+    frame_times = _numbers(Path(times), 1)[:, 0] if times else np.arange(len(rows)) * FRAME_PERIOD_S
+    if len(frame_times) < len(rows):
+        raise DataError(f"{times}: {len(frame_times)} times for the {len(rows)} poses of {poses}")
+    return cam0 @ tr, frame_times[: len(rows)]  # the poses are camera 0's; Tr maps the LiDAR into camera 0
+
+
+def _tr(calib_path: Path) -> np.ndarray:
+    calib = _parse_calib(calib_path)
+    if "Tr" not in calib or calib["Tr"].size != 12:
+        raise DataError(f"{calib_path}: no Tr line of 12 numbers (needed with the sequence's poses)")
+    return calib["Tr"].reshape(3, 4)
+
+
+def poses_file(sequence_dir: Path) -> Path:
+    """Where KITTI keeps a sequence's ground-truth poses: `<root>/poses/<sequence>.txt`."""
+    return sequence_dir.parent.parent / "poses" / f"{sequence_dir.name}.txt"
+
+
+def ego_motion(sequence_dir: Path, stem: str) -> np.ndarray | None:
+    """[6] the LiDAR's velocity (v m/s, w rad/s, in its frame) at frame `stem`, from the neighbouring frames' poses
+    (frame times from times.txt, else 10 Hz); None when the sequence has no poses file."""
+    poses = poses_file(sequence_dir)
+    if not poses.is_file():
+        return None
+    calib, times = sequence_dir / "calib.txt", sequence_dir / "times.txt"
+    has_times = times.is_file()
+    stamps = tuple(p.stat().st_mtime_ns for p in (poses, calib, *([times] if has_times else [])))
+    lidar, frame_times = _lidar_poses_cached(str(poses), str(calib), str(times) if has_times else None, stamps)
+    if not stem.isdigit() or int(stem) >= len(lidar):
+        raise DataError(f"{poses}: {len(lidar)} poses, none for frame {stem} (its line is the frame's number + 1)")
+    return around(lidar, frame_times, int(stem))
+
+
 def read_points(path: Path) -> np.ndarray:
     """[N x 4] float32 x, y, z, reflectance in [0, 1] from a KITTI .bin."""
     if not path.is_file():
@@ -110,6 +173,7 @@ def read_frame(
         T_cam_lidar=T,
         match_radius_px=match_radius_px,
         source=str(scan),
+        ego_motion=ego_motion(sequence_dir, stem),
     )
 
 
@@ -195,9 +259,13 @@ class KittiOdometry(Dataset):
 
     @staticmethod
     def layout_files(sequence_dir: Path, stem: str, camera: int = 2) -> list[Path]:
-        """The files `read_frame` reads for frame `stem` of a sequence: scan, image and the sequence's calibration."""
+        """The files `read_frame` reads for frame `stem` of a sequence: scan, image and the sequence's calibration,
+        plus its poses and times where a poses file exists (without one, the list, and so cache keys, are as before
+        ego motion was read)."""
         scan, image = sequence_dir / "velodyne" / f"{stem}.bin", sequence_dir / f"image_{camera}" / f"{stem}.png"
-        return [scan, image, sequence_dir / "calib.txt"]
+        poses = poses_file(sequence_dir)
+        motion = [poses, sequence_dir / "times.txt"] if poses.is_file() else []
+        return [scan, image, sequence_dir / "calib.txt", *motion]
 
     def frame_files(self, frame_id: str) -> list[Path]:
         sequence, _, stem = frame_id.partition("/")

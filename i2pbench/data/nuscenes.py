@@ -3,6 +3,7 @@
 The devkit is imported only when a nuScenes dataset is used, so `i2pbench.data.plugin` imports fast without it.
 Tables come from `nuscenes.nuscenes.NuScenes`, scene lists from `nuscenes.utils.splits.create_splits_scenes`. Points
 are read from the .pcd.bin directly because `LidarPointCloud.from_file` drops the fifth column, the ring index.
+A frame's `ego_motion` (the LiDAR's velocity, in its frame) comes from the ego poses of records near the sweep in time.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from ..geometry import invert
 from ..types import SensorFrame
 from .base import Dataset
 from .calibration import check_finite, check_intrinsics
+from .ego_motion import velocity
 from .images import read_image
 
 CAMERAS = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_FRONT_LEFT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_BACK_RIGHT")
@@ -34,6 +36,7 @@ SPLITS: dict[str, tuple[tuple[str, ...], str]] = {
     "mini_val": (("mini_val",), "v1.0-mini"),
 }
 EVAL_SPLIT = {"v1.0-trainval": "val", "v1.0-mini": "mini_val", "v1.0-test": "test"}  # what `test` falls back to
+NEAR_S = (0.005, 0.2)  # seconds from the sweep a pose must be to time its motion: past pose noise, within a sweep gap
 DEVKIT_INSTALL = (
     "pip install --no-deps nuscenes-devkit pyquaternion matplotlib shapely scikit-learn pycocotools descartes fire "
     "cachetools tqdm Pillow"
@@ -228,6 +231,49 @@ class NuScenes(Dataset):
         check_intrinsics(K, f"{tables / 'calibrated_sensor.json'}: token {cam_sensor['token']}: camera_intrinsic")
         return K, T
 
+    def ego_motion(self, lidar: dict[str, Any]) -> np.ndarray | None:
+        """[6] the LiDAR's velocity (v m/s, w rad/s, in its frame) at the sweep: from the neighbouring sweeps' ego
+        poses (the sample_data chain, 20 Hz) where the tables hold them, else from the ego pose of the sample's
+        record furthest in time from the sweep (a camera, 10-45 ms off); only poses 5 ms to 0.2 s away count, so
+        None where every sensor shares the sweep's timestamp (the synthetic dataroot's still scenes)."""
+        get, tables = self.devkit.get, self.root / self.conf["version"]
+        ego_from_lidar = record_matrix(
+            get("calibrated_sensor", lidar["calibrated_sensor_token"]), str(tables / "calibrated_sensor.json")
+        )
+
+        def pose(record: dict[str, Any]) -> tuple[float, np.ndarray]:
+            ego = record_matrix(get("ego_pose", record["ego_pose_token"]), str(tables / "ego_pose.json"))
+            return record["timestamp"] * 1e-6, ego @ ego_from_lidar
+
+        near = self._near(lidar)
+        if not near:
+            return None
+        (t_a, before), *_, (t_b, after) = sorted((pose(r) for r in [lidar, *near]), key=lambda p: p[0])
+        return velocity(before, t_a, after, t_b, pose(lidar)[1])
+
+    def _near(self, lidar: dict[str, Any]) -> list[dict[str, Any]]:
+        """The records whose ego poses time the sweep's motion: its prev/next sweeps held in the tables, else the
+        sample's other record furthest in time; only those 5 ms to 0.2 s from the sweep."""
+        nusc = self.devkit
+
+        def near(record: dict[str, Any]) -> bool:
+            return NEAR_S[0] <= abs(record["timestamp"] - lidar["timestamp"]) * 1e-6 <= NEAR_S[1]
+
+        sweeps = [r for r in (self._record(lidar["prev"]), self._record(lidar["next"])) if r is not None and near(r)]
+        if sweeps:
+            return sweeps
+        data = nusc.get("sample", lidar["sample_token"])["data"]
+        others = [r for r in map(self._record, data.values()) if r is not None and r["token"] != lidar["token"]]
+        others = [r for r in others if near(r)]
+        return [max(others, key=lambda r: abs(r["timestamp"] - lidar["timestamp"]))] if others else []
+
+    def _record(self, token: str) -> dict[str, Any] | None:
+        """A sample_data record, None when the token is empty or not in the tables (a dataroot without sweeps)."""
+        try:
+            return self.devkit.get("sample_data", token) if token else None
+        except KeyError:
+            return None
+
     def load(self, frame_id: str) -> SensorFrame:
         lidar, cam = self._sample_data(frame_id)
         sweep = self.root / lidar["filename"]
@@ -243,6 +289,7 @@ class NuScenes(Dataset):
             T_cam_lidar=T,
             match_radius_px=self.match_radius_px,
             source=str(sweep),
+            ego_motion=self.ego_motion(lidar),
         )
 
     def identity(self) -> dict[str, Any]:
