@@ -1,7 +1,8 @@
 """The built-in corruptions, registered by the `datasets` plugin (docs/robustness.md has every table).
 
 Image corruptions act on the [H x W x 3] uint8 RGB image, LiDAR ones on the scan in the sensor's own frame (rays from
-its origin, rings in scan order), the geometry one on the K the stages are told. Each table has five severities,
+its origin, rings in scan order), the geometry ones on the K the stages are told or, `tilt`, by a rigid motion of the
+cloud that the protocol composes into its random transform. Each table has five severities,
 mild to severe, in the spirit of ImageNet-C and KITTI-C; the levels are chosen for full-resolution KITTI frames
 (about 1241 x 376 px, a 64-ring scan) and are the same for every dataset, so boards compare.
 """
@@ -12,8 +13,10 @@ import dataclasses
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from .corruptions import Corruption, with_points
+from .geometry import invert, make_transform, transform_points
 from .types import SensorFrame
 
 
@@ -224,3 +227,43 @@ class IntrinsicError(Corruption):
         K[0, 2] *= 1 + sign[1] * level / 100
         K[1, 2] *= 1 + sign[2] * level / 100
         return dataclasses.replace(sensor, K=K)
+
+
+class Tilt(Corruption):
+    """A tilted mount or a sloped road: the cloud rotated by theta degrees (1..8) about a horizontal LiDAR axis at a
+    random azimuth (roll and pitch split by it, their signs with it), so its z axis leans by exactly theta. The
+    protocol composes the motion into its yaw-only T_rand and into T_gt: the registration problem is the same, only
+    a method assuming a gravity-aligned scan (a yaw-canonical frame, a 2D solver) meets a pose it never drew."""
+
+    name, kind = "tilt", "geometry"
+    meaning = "a tilted LiDAR mount or a sloped, cambered road: a scan whose z axis is not vertical"
+    parameter = "tilt: roll and pitch together (degrees)"
+    levels = (1, 2, 3, 5, 8)
+    moves_cloud = True
+
+    def motion(self, sensor, level, rng):
+        azimuth = rng.uniform(0.0, 2 * np.pi)
+        axis = np.array([np.cos(azimuth), np.sin(azimuth), 0.0])  # horizontal: no yaw, which T_rand already draws
+        return make_transform(Rotation.from_rotvec(np.radians(level) * axis).as_matrix(), np.zeros(3))
+
+
+class TimeOffset(Corruption):
+    """Unsynchronised clocks: the scan as the LiDAR saw it dt ms (10..200, random sign) after or before the stamp it
+    is paired with. The sensor moved by M = [R(w dt) | v dt] meanwhile (its ego motion, in its own frame), so each
+    point is p' = inv(M) p; the image and T_gt stay those of the stamp. Needs the frame's ego motion."""
+
+    name, kind = "time-offset", "lidar"
+    meaning = "unsynchronised LiDAR and camera clocks on a moving car: the scan taken dt before or after the image"
+    parameter = "clock offset (ms)"
+    levels = (10, 25, 50, 100, 200)
+    needs = ("ego_motion",)
+
+    def corrupt(self, sensor, level, rng):
+        ego = np.asarray(sensor.ego_motion, dtype=np.float64)
+        if ego.shape != (6,) or not np.isfinite(ego).all():
+            raise ValueError(f"ego_motion must be 6 finite numbers (v in m/s, w in rad/s), got {ego.tolist()}")
+        dt = rng.choice([-1.0, 1.0]) * level / 1000.0
+        moved = make_transform(Rotation.from_rotvec(ego[3:] * dt).as_matrix(), ego[:3] * dt)  # the LiDAR at t + dt
+        points = sensor.points.copy()
+        points[:, :3] = transform_points(invert(moved), sensor.points[:, :3].astype(np.float64)).astype(np.float32)
+        return dataclasses.replace(sensor, points=points)

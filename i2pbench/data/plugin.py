@@ -17,6 +17,8 @@ CORRUPTIONS = {
     "reflectance-noise": "ReflectanceNoise",
     "missing-sector": "MissingSector",
     "intrinsic-error": "IntrinsicError",
+    "tilt": "Tilt",
+    "time-offset": "TimeOffset",
 }
 
 
