@@ -270,7 +270,7 @@ def test_the_cli_runs_tilt_and_refuses_time_offset_on_kitti_without_poses(shared
     def run(spec: str) -> subprocess.CompletedProcess:
         cmd = [sys.executable, "-m", "i2pbench.cli", "run", "--matcher", "oracle", "--dataset", "kitti", "--split",
                "all", "--data-root", str(shared_data / "kitti_odometry"), "--frames", "2", "--threads", "1",
-               "--quiet", "--corruption", spec, "--runs-dir", str(tmp_path / "runs"),
+               "--quiet", "--corruption", spec, "--runs-dir", str(tmp_path / "runs" / spec),
                "--out", str(tmp_path / spec)]  # fmt: skip
         return subprocess.run(cmd, capture_output=True, text=True, timeout=300)
 
@@ -279,8 +279,10 @@ def test_the_cli_runs_tilt_and_refuses_time_offset_on_kitti_without_poses(shared
     rows = (tmp_path / "tilt:5.csv").read_text().splitlines()
     assert len(rows) == 2 and ",tilt,5," in rows[1] and ",100.0," in rows[1]
     refused = run("time-offset:1")
-    assert refused.returncode != 0 and "time-offset" in refused.stderr
-    assert "ego motion" in refused.stderr and "Traceback" not in refused.stderr
+    assert refused.returncode == 2 and "Traceback" not in refused.stderr
+    assert "time-offset:1: 2 of the 2 kitti frames (the first 00/000000) cannot take it" in refused.stderr
+    assert (tmp_path / "runs" / "tilt:5" / "kitti-all").is_dir()
+    assert not (tmp_path / "runs" / "time-offset:1" / "kitti-all").exists()  # refused before any frame: no store
 
 
 # the ego motion the datasets give

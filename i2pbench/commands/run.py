@@ -196,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
     frame_ids = dataset.frame_ids()[: args.frames]
     if not frame_ids:
         raise DataError(f"dataset {dataset.name!r} split {dataset.split!r} has no frames to run")
-    protocols = _protocols(registry, Protocol(seed=args.seed), args)
+    protocols = _protocols(registry, Protocol(seed=args.seed), args, dataset, frame_ids)
     name = f"{dataset.name}-{dataset.split}"
     store = _open_store(Path(args.runs_dir) / name)
     invocation = Invocation(store.root, _meta(args, threads, protocols, dataset, frame_ids, combinations))
@@ -212,8 +212,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _protocols(registry, base, args: argparse.Namespace) -> list:
-    """The protocols to run, each a set of rows: the clean one, or those `--corruption` / `--robustness` name."""
+def _protocols(registry, base, args: argparse.Namespace, dataset, frame_ids: list[str]) -> list:
+    """The protocols to run, each a set of rows: the clean one, or those `--corruption` / `--robustness` name; a
+    corruption the run's frames cannot take (time-offset without ego motion) is left out of `all` with a note, and
+    refused before any frame runs when named."""
     from ..corruptions import ALL, CLEAN, protocols
     from ..errors import PluginError
 
@@ -222,7 +224,7 @@ def _protocols(registry, base, args: argparse.Namespace) -> list:
         if args.severities:
             raise PluginError("--severities chooses the severities of --corruption NAME or --robustness; give one")
         return [base]
-    return protocols(registry, base, specs, args.severities)
+    return protocols(registry, base, specs, args.severities, dataset=dataset, frame_ids=frame_ids)
 
 
 def _robustness(registry, board):
