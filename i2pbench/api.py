@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 from .components import (
     FEATURES2D,
     FEATURES3D,
+    FRUSTUM_SCORES,
     GROUND_TRUTH,
     IMAGE,
     KEYPOINTS2D,
@@ -37,6 +38,7 @@ if TYPE_CHECKING:
 __all__ = [
     "FEATURES2D",
     "FEATURES3D",
+    "FRUSTUM_SCORES",
     "GROUND_TRUTH",
     "IMAGE",
     "KEYPOINTS2D",

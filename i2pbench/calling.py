@@ -76,7 +76,7 @@ def call_stage(component: Component, frame: Frame, inputs: StageInputs) -> Stage
     seconds = time.perf_counter() - start
     n2d = len(inputs.kp2d) if inputs.kp2d is not None else 0
     n3d = len(inputs.kp3d) if inputs.kp3d is not None else 0
-    checked = contracts.check_output(component.kind, out, frame, n2d, n3d, component.label)
+    checked = contracts.check_output(component.kind, out, frame, n2d, n3d, component.label, component.provides)
     return StageRecord(component.kind, component.label, checked, seconds)
 
 

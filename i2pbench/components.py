@@ -21,6 +21,12 @@ IMAGE, POINTS, GROUND_TRUTH = "image", "points", "ground_truth"
 KEYPOINTS2D, KEYPOINTS3D = "keypoints2d", "keypoints3d"
 FEATURES2D, FEATURES3D = "features2d", "features3d"
 MATCHES = "matches"
+# per-3D-keypoint probabilities of lying in the camera frustum, carried by `Matches.frustum` (DeepI2P's classifier
+# provides them, its inverse-projection solver consumes them)
+FRUSTUM_SCORES = "frustum_scores"
+# values beyond those of the stage bases, each with the one stage kind that may provide it: a component declares one
+# in `provides` explicitly, and a stage consuming it needs a component that does
+EXTRA_VALUES: dict[str, str] = {FRUSTUM_SCORES: "matcher"}
 
 
 class ConfigError(PluginError, ValueError):

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .components import FRUSTUM_SCORES
 from .errors import StageError
 from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
 
@@ -74,7 +75,8 @@ def check_features(features: object, n2d: int, n3d: int, component: str) -> Feat
     return features
 
 
-def check_matches(matches: object, n2d: int, n3d: int, component: str) -> Matches:
+def check_matches(matches: object, n2d: int, n3d: int, component: str, frustum_required: bool = False) -> Matches:
+    """`matches` checked against n2d and n3d keypoints; `frustum_required`: the matcher declares FRUSTUM_SCORES."""
     _require(isinstance(matches, Matches), component, f"returned {type(matches).__name__}, expected Matches")
     k = len(matches.index2d)
     _require(
@@ -93,7 +95,25 @@ def check_matches(matches: object, n2d: int, n3d: int, component: str) -> Matche
         component,
         f"index3d out of range for {n3d} 3D keypoints",
     )
+    _require(
+        matches.frustum is not None or not frustum_required,
+        component,
+        f"declares it provides {FRUSTUM_SCORES} but returned Matches.frustum None",
+    )
+    if matches.frustum is not None:
+        check_frustum(matches.frustum, n3d, component)
     return matches
+
+
+def check_frustum(frustum: object, n3d: int, component: str) -> None:
+    """Frustum scores: one probability per 3D keypoint, [M3], finite, in [0, 1]."""
+    _require(
+        isinstance(frustum, np.ndarray) and frustum.shape == (n3d,),
+        component,
+        f"frustum scores must be [{n3d}] (one per 3D keypoint), got {_shape(frustum)}",
+    )
+    _require(bool(np.all(np.isfinite(frustum))), component, "frustum scores contain NaN or inf")
+    _require(n3d == 0 or (frustum.min() >= 0 and frustum.max() <= 1), component, "frustum scores must lie in [0, 1]")
 
 
 def check_estimate(estimate: object, component: str) -> PoseEstimate:
@@ -113,8 +133,11 @@ def check_estimate(estimate: object, component: str) -> PoseEstimate:
     return estimate
 
 
-def check_output(kind: str, out: object, frame: Frame, n2d: int, n3d: int, component: str) -> Any:
-    """`out` checked as the output of a stage of `kind`, given the frame and the keypoint counts it was handed."""
+def check_output(
+    kind: str, out: object, frame: Frame, n2d: int, n3d: int, component: str, provides: frozenset[str] = frozenset()
+) -> Any:
+    """`out` checked as the output of a stage of `kind`, given the frame and the keypoint counts it was handed, and
+    the values the component declares it `provides` beyond its kind's (a matcher's FRUSTUM_SCORES)."""
     if kind == "extractor2d":
         return check_keypoints2d(out, frame, component)
     if kind == "extractor3d":
@@ -124,5 +147,5 @@ def check_output(kind: str, out: object, frame: Frame, n2d: int, n3d: int, compo
     if kind == "exchanger":
         return check_features(out, n2d, n3d, component)
     if kind == "matcher":
-        return check_matches(out, n2d, n3d, component)
+        return check_matches(out, n2d, n3d, component, FRUSTUM_SCORES in provides)
     return check_estimate(out, component)  # the solver's

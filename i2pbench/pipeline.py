@@ -24,8 +24,10 @@ from typing import TYPE_CHECKING, Any
 from . import contracts, interrupts
 from .calling import StageInputs, call_stage
 from .components import (
+    EXTRA_VALUES,
     FEATURES2D,
     FEATURES3D,
+    FRUSTUM_SCORES,
     GROUND_TRUTH,
     IMAGE,
     KEYPOINTS2D,
@@ -50,7 +52,7 @@ if TYPE_CHECKING:  # a pipeline of classic stages runs without torch; learned st
 NONE = "none"  # a stage set to "none" is skipped
 REQUIRED_STAGES = ("extractor2d", "extractor3d", "matcher", "solver")
 # what a solver may read to run alone on a stored upstream: no pixels, no points (they are not stored)
-RESOLVABLE = frozenset({KEYPOINTS2D, KEYPOINTS3D, MATCHES, GROUND_TRUTH})
+RESOLVABLE = frozenset({KEYPOINTS2D, KEYPOINTS3D, MATCHES, FRUSTUM_SCORES, GROUND_TRUTH})
 
 
 @dataclass(frozen=True)
@@ -285,7 +287,13 @@ def _describe(exc: BaseException) -> str:
 
 
 # Which stage kind normally provides each value, for error messages.
-_PROVIDER = {KEYPOINTS2D: "extractor2d", KEYPOINTS3D: "extractor3d", FEATURES2D: "encoder2d", FEATURES3D: "encoder3d"}
+_PROVIDER = {
+    KEYPOINTS2D: "extractor2d",
+    KEYPOINTS3D: "extractor3d",
+    FEATURES2D: "encoder2d",
+    FEATURES3D: "encoder3d",
+    **EXTRA_VALUES,
+}
 
 
 def _check_compatibility(stages: Mapping[str, Component]) -> None:

@@ -39,7 +39,10 @@ class Failure:
 
 @dataclass(frozen=True)
 class Upstream:
-    """What the solver consumes, as the stages before it produced it: stored, it lets another solver run alone."""
+    """What the solver consumes, as the stages before it produced it: stored, it lets another solver run alone.
+
+    `matches` carries the matcher's frustum scores when it gives them (`Matches.frustum`), so a frustum solver
+    re-runs from the store as any other."""
 
     kp2d: Keypoints2D
     kp3d: Keypoints3D

@@ -113,11 +113,17 @@ class Features:
 
 @dataclass(frozen=True)
 class Matches:
-    """2D-3D correspondences."""
+    """2D-3D correspondences, and optionally what the matcher believes of every 3D keypoint.
+
+    `frustum` is set by a matcher that declares FRUSTUM_SCORES (i2pbench.components) in `provides`: for each 3D
+    keypoint, its probability of lying in the camera frustum (DeepI2P's classification), which an inverse-projection
+    solver fits a pose to. None: the matcher gives none.
+    """
 
     index2d: np.ndarray  # [K] int64 rows of Keypoints2D.uv
     index3d: np.ndarray  # [K] int64 rows of Keypoints3D
     score: np.ndarray  # [K] float32, higher is more confident
+    frustum: np.ndarray | None = None  # [M3] float32 in [0, 1], one per 3D keypoint (not per match)
 
     def __len__(self) -> int:
         return int(self.index2d.shape[0])

@@ -4,7 +4,9 @@ An upstream holds the 2D and 3D keypoints and the matches, the seconds each stag
 a solver and the metrics read from a Frame besides pixels and points: intrinsics, image size, ground truth, eps_c.
 It is stored as arrays (`.npz`, uncompressed): float32 coordinates and scores, int32 indices when they fit, and the
 dtypes a stage returned when narrowing them would change a value, so a re-run solver sees exactly what the first one
-saw. `decode` checks every shape and index, so a damaged or foreign file is refused rather than solved.
+saw. `decode` checks every shape and index, so a damaged or foreign file is refused rather than solved. The matches'
+frustum scores (`Matches.frustum`) are stored when the matcher gave them and absent otherwise, so files without them
+(every matcher but a frustum classifier's, and every file written before they existed) read back as None.
 """
 
 from __future__ import annotations
@@ -90,6 +92,8 @@ class StoredUpstream:
         for name, T in (("T_gt", self.T_gt), ("T_init", self.T_init), ("K_gt", self.K_gt)):
             if T is not None:  # absent rather than NaN: decoding gives back None
                 arrays[name] = np.asarray(T, np.float64)
+        if up.matches.frustum is not None:
+            arrays["frustum"] = _narrow(up.matches.frustum)
         return arrays
 
     @classmethod
@@ -99,7 +103,7 @@ class StoredUpstream:
         upstream = Upstream(
             Keypoints2D(a["uv"]),
             Keypoints3D(a["kp3d_index"].astype(np.int64), a["xyz"], a["reflectance"]),
-            Matches(a["index2d"].astype(np.int64), a["index3d"].astype(np.int64), a["score"]),
+            Matches(a["index2d"].astype(np.int64), a["index3d"].astype(np.int64), a["score"], a.get("frustum")),
         )
         width, height = (int(v) for v in a["image_size"])
         return cls(
@@ -135,7 +139,7 @@ def _checked(a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     m2, m3, k = len(a["uv"]), len(a["kp3d_index"]), len(a["index2d"])
     shapes = {"uv": (m2, 2), "xyz": (m3, 3), "reflectance": (m3,), "index3d": (k,), "score": (k,), "K": (3, 3)}
     shapes |= {"timings": (len(UPSTREAM_KINDS),), "image_size": (2,), "frame": (2,), "T_gt": (4, 4), "T_init": (4, 4)}
-    shapes["K_gt"] = (3, 3)
+    shapes |= {"K_gt": (3, 3), "frustum": (m3,)}
     wrong = [
         f"{name} is {a[name].shape}, not {shape}"
         for name, shape in shapes.items()

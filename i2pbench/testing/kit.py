@@ -2,7 +2,8 @@
 
 Checks, in order (each problem names its check and what went wrong):
 - declaration: subclasses a stage base, has a name, a dict `default_conf`, refuses unknown config keys, and its
-  `consumes`/`provides` name known values that stages before its kind can provide;
+  `consumes`/`provides` name known values that stages before its kind can provide (an extra value such as
+  FRUSTUM_SCORES provided only by its kind, a matcher);
 - contract: on a sample frame the output has the documented types, shapes, dtypes, ranges and finite values;
 - declared inputs: a component that fails without T_gt but works with it reads ground truth it did not declare;
 - no side effects: the frame's arrays are unchanged after the call;
@@ -26,7 +27,7 @@ from typing import Any
 import torch
 
 from ..calling import StageInputs, call_stage
-from ..components import STAGE_BASES, STAGE_ORDER, Component, ConfigError
+from ..components import EXTRA_VALUES, STAGE_BASES, STAGE_ORDER, Component, ConfigError
 from ..contracts import ContractError
 from ..errors import StageError
 from ..learned import LearnedComponent
@@ -94,12 +95,13 @@ def check_declaration(cls: type) -> list[Problem]:
 
 
 def _check_values(cls: type[Component]) -> list[Problem]:
-    """consumes/provides must name known values, and only values available before this kind runs."""
+    """consumes/provides must name known values, only values available before this kind runs, and an extra value
+    (EXTRA_VALUES, e.g. a matcher's frustum scores) only as a component of the kind that may provide it."""
     known = set().union(*(b.consumes | b.provides for b in STAGE_BASES.values()))
-    known |= {"ground_truth"}
+    known |= {"ground_truth"} | set(EXTRA_VALUES)
     available = {"image", "points", "ground_truth"}
     for kind in STAGE_ORDER[: STAGE_ORDER.index(cls.kind)]:
-        available |= STAGE_BASES[kind].provides
+        available |= STAGE_BASES[kind].provides | {v for v, provider in EXTRA_VALUES.items() if provider == kind}
     problems = []
     for attr in ("consumes", "provides"):
         unknown = sorted(set(getattr(cls, attr)) - known)
@@ -108,6 +110,10 @@ def _check_values(cls: type[Component]) -> list[Problem]:
     late = sorted(set(cls.consumes) & known - available)
     if late:
         problems.append(Problem("declaration", f"consumes {late}, which no stage before the {cls.kind} provides"))
+    misplaced = sorted(v for v in set(cls.provides) & set(EXTRA_VALUES) if EXTRA_VALUES[v] != cls.kind)
+    if misplaced:
+        kinds = ", ".join(f"{v} by a {EXTRA_VALUES[v]}" for v in misplaced)
+        problems.append(Problem("declaration", f"provides {misplaced}, which only {kinds} can carry"))
     return problems
 
 

@@ -27,6 +27,7 @@ DTYPES: dict[tuple[type, str], Any] = {
     (Matches, "index2d"): np.int64,
     (Matches, "index3d"): np.int64,
     (Matches, "score"): np.float32,
+    (Matches, "frustum"): np.float32,
     (PoseEstimate, "T"): np.float64,
     (PoseEstimate, "inliers"): np.int64,
 }
