@@ -38,7 +38,7 @@ from .poses import full_from_planar, full_pose, planar_pose, wrap_angle
 
 @dataclass(frozen=True)
 class FrustumOptions:
-    """How the solver searches: the would-be solver component's default_conf."""
+    """How the solver searches: the config of solver.py's component."""
 
     starts: int = 48  # local searches, one per yaw sector of 360 / starts degrees (the paper runs 60)
     start_depth_m: tuple[float, float] = (3.0, 30.0)  # a start puts the predicted-inside centroid this far ahead
@@ -217,7 +217,7 @@ def solve_frustum_pose(
     variant: str = "2d",
     options: FrustumOptions = FrustumOptions(),
 ) -> PoseEstimate:
-    """The would-be solver component's body: a PoseEstimate, failed (never raising) when no pose can be fitted."""
+    """The body of solver.py's component: a PoseEstimate, failed (never raising) when no pose can be fitted."""
     if variant not in ("2d", "3d"):
         raise ValueError(f"variant must be '2d' or '3d', got {variant!r}")
     xyz, scores = np.asarray(xyz, dtype=np.float64), np.asarray(scores, dtype=np.float64)
