@@ -164,12 +164,3 @@ STAGE_BASES: dict[str, type[Component]] = {
     cls.kind: cls for cls in (Extractor2D, Extractor3D, Encoder2D, Encoder3D, Exchanger, Matcher, PoseSolver)
 }
 STAGE_ORDER: tuple[str, ...] = tuple(STAGE_BASES)
-
-
-def __getattr__(name: str) -> Any:
-    """`LearnedComponent` subclasses torch.nn.Module, so it lives in i2pbench.learned and is imported on first use."""
-    if name == "LearnedComponent":
-        from .learned import LearnedComponent
-
-        return LearnedComponent
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
