@@ -347,7 +347,7 @@ class Trainer:
         self.validation = self.validate()
         if report and self.validation:
             report(self.step, {f"val_{k}": v for k, v in self.validation.items()})
-        acc = self.validation.get("acc")
+        acc = self.validation.get("acc_pct")  # summarize's key: with "acc" no best checkpoint was ever kept
         if acc is not None and (self.best is None or acc > self.best):
             self.best = acc
             save_checkpoint(best_path(self.out), self.pipeline, best_acc=acc, **self._progress(), **meta)

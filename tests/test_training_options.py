@@ -47,7 +47,10 @@ def test_deterministic_compiled_training_logs_scalars_to_tensorboard(shared_data
     flags = ("--deterministic", "--compile", "aot_eager", "--tensorboard", str(board))
     done = train(shared_data, tmp_path, out, *flags)
     assert done.returncode == 0, done.stderr
-    config = load_checkpoint(out).meta["train_config"]
+    last = load_checkpoint(out).meta
+    config = last["train_config"]
+    best = load_checkpoint(out.with_name("w.best.pt")).meta  # validation ran at step 2: the best so far is kept
+    assert best["steps"] == 2 and best["best_acc"] == last["validation"]["acc_pct"] == last["best_acc"]
     assert config["deterministic"] is True and config["compile"] == "aot_eager"
     events = EventAccumulator(str(board))
     events.Reload()
