@@ -6,6 +6,8 @@ stride 4 of the half-size image, 512-wide global features on both sides, 128 + 1
 features, 40,960 input points, 64-wide matching descriptors, a 0.9 overlap-score threshold, the circle loss's margins
 0.2 / 1.8 and scale 10 over 512 in-view anchors, the overlap loss weighted 0.5. Widths we chose (the paper's
 per-keypoint width before the exchange has no counterpart in its layout): 128 local channels per keypoint.
+The CPU size also turns on the yaw-canonical frame for the point encoder (our addition, as EdgeRegNet's small size:
+without it the invariance to the protocol's random yaw must be learnt from augmentation, which a CPU cannot afford).
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ CPU: dict[str, dict[str, Any]] = {
     },
     "encoder3d": {
         **CPU_WIDTH,
+        "canonical_yaw": True,  # our addition, as EdgeRegNet's small size: no yaw invariance to learn from data
         "num_points": 8192,
         "sa1": {"npoint": 128, "radius": 0.1, "nsample": 32, "mlp": (32, 32, 64)},
         "sa2": {"npoint": 128, "radius": 0.3, "nsample": 16, "mlp": (64, 128)},

@@ -15,7 +15,8 @@ What differs, and why:
 - the exchange runs on the per-keypoint features the encoders return (the stage boundary), not inside the image
   decoder at strides 32 and 16 as in the paper: the fused features are not convolved again;
 - the 3D nodes are farthest-point samples of the 3D keypoints (the paper samples the whole cloud), each keypoint
-  belonging to its nearest node; the 2D cells pool the keypoints they contain.
+  belonging to its nearest node; the 2D cells pool the keypoints they contain;
+- the update MLPs are normalised over each frame's keypoints (frame_norm.py), as the paper's BatchNorm.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from torch import nn
 
 from i2pbench.api import Component, Exchanger, Features, Frame, Keypoints2D, Keypoints3D, LearnedComponent, StageError
 
-from .points import linear_mlp
+from .frame_norm import FrameMLP
 
 
 def width_mismatch(component: Component, upstream: Mapping[str, Component], keys: Sequence[str]) -> str | None:
@@ -118,8 +119,8 @@ class CorrI2PExchanger(LearnedComponent, Exchanger):
             raise ValueError(f"{self.label}: needs descriptor_dim > global_dim and attention_dim divisible by heads")
         local, heads, hidden = d - g, self.conf["num_heads"], tuple(self.conf["fusion_mlp"])
         self.attend2d, self.attend3d = NodeAttention(d, local, a, heads), NodeAttention(d, local, a, heads)
-        self.fuse2d = linear_mlp((local + a + 2 * g, *hidden, d))
-        self.fuse3d = linear_mlp((local + a + 2 * g, *hidden, d))
+        self.fuse2d = FrameMLP((local + a + 2 * g, *hidden, d))
+        self.fuse3d = FrameMLP((local + a + 2 * g, *hidden, d))
 
     def check_compatible(self, upstream: Mapping[str, Component]) -> str | None:
         return width_mismatch(self, upstream, ("descriptor_dim", "global_dim"))
@@ -177,8 +178,8 @@ class CorrI2PExchanger(LearnedComponent, Exchanger):
         nodes, node_valid = pool_nodes(l3, inputs["node3d"], mask3d, self.conf["point_nodes"])
         m2 = self.attend2d(torch.cat([l2, expand(g3, l2)], -1), nodes, node_valid)
         m3 = self.attend3d(torch.cat([l3, expand(g2, l3)], -1), cells, cell_valid)
-        d2 = d2 + self.fuse2d(torch.cat([l2, m2, expand(g2, l2), expand(g3, l2)], -1))
-        d3 = d3 + self.fuse3d(torch.cat([l3, m3, expand(g3, l3), expand(g2, l3)], -1))
+        d2 = d2 + self.fuse2d(torch.cat([l2, m2, expand(g2, l2), expand(g3, l2)], -1), mask2d)
+        d3 = d3 + self.fuse3d(torch.cat([l3, m3, expand(g3, l3), expand(g2, l3)], -1), mask3d)
         return d2, d3
 
 

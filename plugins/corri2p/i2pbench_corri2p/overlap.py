@@ -13,7 +13,8 @@ What differs, and why:
 - the overlap loss is a class-balanced binary cross-entropy (the mean over overlapping keypoints plus the mean over
   the others); the paper's code penalises (1 - s) and s over 512 sampled keypoints of each class, the same balance
   with a linear rather than logarithmic penalty;
-- the heads are Linear + LayerNorm + ReLU layers rather than 1x1 convolutions with BatchNorm (one-frame steps).
+- the heads are Linear + ReLU layers normalised over each frame's keypoints (frame_norm.py), the paper's 1x1
+  convolutions with BatchNorm with one frame's statistics instead of a batch's.
 """
 
 from __future__ import annotations
@@ -39,8 +40,8 @@ from i2pbench.api import (
 )
 
 from .exchange import width_mismatch
+from .frame_norm import FrameMLP
 from .loss import anchor_pairs, balanced_bce, circle_loss, overlap_labels
-from .points import linear_mlp
 
 
 def mutual_nearest(sim: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -94,18 +95,20 @@ class CorrI2PMatcher(LearnedComponent, Matcher):
     def __init__(self, conf: dict[str, Any] | None = None) -> None:
         super().__init__(conf)
         d, hidden, out = self.conf["descriptor_dim"], tuple(self.conf["head_mlp"]), self.conf["match_dim"]
-        self.desc2d, self.desc3d = linear_mlp((d, *hidden, out)), linear_mlp((d, *hidden, out))
-        self.score2d, self.score3d = linear_mlp((d, *hidden, 1)), linear_mlp((d, *hidden, 1))
+        self.desc2d, self.desc3d = FrameMLP((d, *hidden, out)), FrameMLP((d, *hidden, out))
+        self.score2d, self.score3d = FrameMLP((d, *hidden, 1)), FrameMLP((d, *hidden, 1))
 
     def check_compatible(self, upstream: Mapping[str, Component]) -> str | None:
         return width_mismatch(self, upstream, ("descriptor_dim",))
 
-    def forward(self, d2: torch.Tensor, d3: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """d2 [... x M2 x D], d3 [... x M3 x D] -> overlap logits ([... x M2], [... x M3]) and normalised matching
-        descriptors ([... x M2 x E], [... x M3 x E])."""
+    def forward(
+        self, d2: torch.Tensor, d3: torch.Tensor, mask2d: torch.Tensor | None = None, mask3d: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, ...]:
+        """d2 [... x M2 x D], d3 [... x M3 x D] (keypoint masks [... x M2], [... x M3], None: no padding) -> overlap
+        logits ([... x M2], [... x M3]) and normalised matching descriptors ([... x M2 x E], [... x M3 x E])."""
         d2, d3 = d2.float(), d3.float()
-        f2, f3 = F.normalize(self.desc2d(d2), dim=-1), F.normalize(self.desc3d(d3), dim=-1)
-        return self.score2d(d2)[..., 0], self.score3d(d3)[..., 0], f2, f3
+        f2, f3 = F.normalize(self.desc2d(d2, mask2d), dim=-1), F.normalize(self.desc3d(d3, mask3d), dim=-1)
+        return self.score2d(d2, mask2d)[..., 0], self.score3d(d3, mask3d)[..., 0], f2, f3
 
     @torch.no_grad()
     def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Matches:
@@ -149,7 +152,7 @@ class CorrI2PMatcher(LearnedComponent, Matcher):
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """circle + overlap_weight x overlap, the mean over a batch of `prepare`d frames; descriptors
         [B x M2 x D], [B x M3 x D], keypoint masks [B x M2], [B x M3]."""
-        z2, z3, f2, f3 = nn.Module.__call__(self, features.desc2d, features.desc3d)
+        z2, z3, f2, f3 = nn.Module.__call__(self, features.desc2d, features.desc3d, mask2d, mask3d)
         overlap = balanced_bce(z2, inputs["overlap2d"], mask2d) + balanced_bce(z3, inputs["overlap3d"], mask3d)
         a2, a3 = inputs["anchor2d"], inputs["anchor3d"]
         dist = 1 - gather_rows(f2, a2) @ gather_rows(f3, a3).transpose(1, 2)  # [B x A2 x A3]

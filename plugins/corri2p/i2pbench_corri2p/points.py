@@ -12,7 +12,13 @@ from the paper, and why:
   at the same node counts and widths (128 nodes of 64 channels, 128 of 256, a 512-wide global feature), on xyz and
   reflectance only: normals would need a neighbourhood estimate the benchmark's frames do not carry;
 - the second level takes its 128 centroids among the first level's (the paper samples them from the cloud again);
-- GroupNorm / LayerNorm instead of BatchNorm, for one-frame steps.
+- each keypoint's head also reads its offsets from its 3 nearest first-level nodes (in units of their radius), the
+  fine geometry the paper's per-point PointNet takes relative to each point's node: interpolated node features and
+  the cloud-normalised position alone differ by ~0.003 between points one stride-16 cell apart;
+- GroupNorm in the set abstractions, and a head normalised over the frame's keypoints (frame_norm.py), instead of
+  BatchNorm, for one-frame steps;
+- `canonical_yaw` (on in the CPU size, off at the paper's) expresses the cloud in its yaw-canonical frame
+  (EdgeRegNet's canonical.py), so the encoder need not learn invariance to the protocol's random yaw from data.
 """
 
 from __future__ import annotations
@@ -22,15 +28,20 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-from i2pbench_edgeregnet.pointnet2 import SetAbstraction, frame_seed, group, interpolate, normalize_points
+from i2pbench_edgeregnet.pointnet2 import SetAbstraction, frame_seed, gather, group, interpolate, normalize_points
 from i2pbench_edgeregnet.pointnet2 import shared_mlp as conv_mlp
 from torch import nn
 
 from i2pbench.api import Encoder3D, Frame, Keypoints3D, LearnedComponent, StageError
 
+from .frame_norm import FrameMLP
+
+NEAREST_NODES = 3  # first-level nodes each keypoint reads (the 3-NN of the feature propagation)
+
 
 def linear_mlp(widths: tuple[int, ...]) -> nn.Sequential:
-    """Linear + LayerNorm + ReLU per hidden width (no activation after the last Linear)."""
+    """Linear + LayerNorm + ReLU per hidden width (no activation after the last Linear); DeepI2P's fusion uses it,
+    CorrI2P's stages normalise over the frame's keypoints instead (frame_norm.py)."""
     layers: list[nn.Module] = []
     for cin, cout in zip(widths[:-2], widths[1:-1], strict=True):
         layers += [nn.Linear(cin, cout), nn.LayerNorm(cout), nn.ReLU(inplace=True)]
@@ -49,9 +60,10 @@ class CorrI2PPointEncoder(LearnedComponent, Encoder3D):
         "sa2": {"npoint": 128, "radius": 0.3, "nsample": 16, "mlp": (256, 256)},  # second 128 nodes, 256 ch, k = 16
         "global_mlp": (256, 512),  # shared MLP on [xyz, SA2 features] before the max (ends at global_dim)
         "fp_mlp": (256,),  # decoder SA2 -> SA1 nodes, on [interpolated SA2, SA1] features
-        "head_mlp": (256, 256),  # hidden widths on [interpolated, xyz, reflectance] at the keypoints, then D - G
+        "head_mlp": (256, 256),  # hidden widths on [interpolated, xyz, reflectance, node offsets] at the keypoints
         "groups": 8,  # GroupNorm groups in the shared MLPs
         "normalize_descriptors": True,  # L2-normalise the local part
+        "canonical_yaw": False,  # True: the cloud in its yaw-canonical frame (EdgeRegNet's canonical.py; our addition)
     }
 
     def __init__(self, conf: dict[str, Any] | None = None) -> None:
@@ -66,7 +78,7 @@ class CorrI2PPointEncoder(LearnedComponent, Encoder3D):
         self.sa2 = SetAbstraction(**c["sa2"], cin=c["sa1"]["mlp"][-1], groups=g)
         self.global_mlp = conv_mlp(3 + c["sa2"]["mlp"][-1], tuple(c["global_mlp"]), g)
         self.fp = conv_mlp(c["sa2"]["mlp"][-1] + c["sa1"]["mlp"][-1], tuple(c["fp_mlp"]), g)
-        self.head = linear_mlp((c["fp_mlp"][-1] + 4, *c["head_mlp"], local))
+        self.head = FrameMLP((c["fp_mlp"][-1] + 4 + 3 * NEAREST_NODES, *c["head_mlp"], local))
 
     def cloud(self, frame: Frame) -> np.ndarray:
         """the frame's finite returns, cut to `num_points` by a subset seeded by the frame id -> [N x 4]."""
@@ -87,12 +99,13 @@ class CorrI2PPointEncoder(LearnedComponent, Encoder3D):
         if len(cloud) == 0:
             raise StageError(self.label, "a scan with no finite point")
         keys = torch.from_numpy(np.c_[kp3d.xyz, kp3d.reflectance].astype(np.float32)).to(device)
-        both = normalize_points(torch.cat([cloud[:, :3], keys[:, :3]]), cloud[:, :3])
+        both = normalize_points(torch.cat([cloud[:, :3], keys[:, :3]]), cloud[:, :3], self.conf["canonical_yaw"])
         inputs = {
             "xyz": both[: len(cloud)],
             "reflectance": cloud[:, 3:],
             "key_xyz": both[len(cloud) :],
             "key_reflectance": keys[:, 3:],
+            "num_keys": torch.tensor(len(keys), device=device),
         }
         grouping = cache.get("grouping") if cache is not None else None
         if grouping is None or len(grouping["edge"]) != len(keys):
@@ -121,8 +134,11 @@ class CorrI2PPointEncoder(LearnedComponent, Encoder3D):
         glob = self.global_mlp(nodes)[..., 0].amax(-1)  # [B x G]
         up = torch.cat([interpolate(xyz1, xyz2, f2, g["up"]), f1], -1)
         f1 = self.fp(up.transpose(1, 2)[..., None])[..., 0].transpose(1, 2)
-        kxyz = g["key_xyz"]
-        local = self.head(torch.cat([interpolate(kxyz, xyz1, f1, g["edge"]), kxyz, g["key_reflectance"]], -1))
+        kxyz, nearest = g["key_xyz"], g["edge"]
+        offsets = (kxyz[:, :, None] - gather(xyz1, nearest)) / self.conf["sa1"]["radius"]  # [B x M x 3 x 3]
+        local = torch.cat([interpolate(kxyz, xyz1, f1, nearest), kxyz, g["key_reflectance"], offsets.flatten(2)], -1)
+        real = torch.arange(kxyz.shape[1], device=kxyz.device)[None] < g["num_keys"].reshape(-1, 1)  # [B x M]
+        local = self.head(local, real)
         if self.conf["normalize_descriptors"]:
             local = F.normalize(local, dim=-1)
         return torch.cat([local, glob[:, None].expand(-1, local.shape[1], -1)], -1)
