@@ -85,6 +85,17 @@ def prepare_stage(
     return stage.prepare(frame, kp2d, kp3d, cache=cache)
 
 
+def exchange_one_frame(
+    stage: torch.nn.Module, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features
+) -> Features:
+    """A batched exchanger's per-frame `__call__`: its `prepare`d inputs and both descriptor sets as a batch of one
+    through its `forward`, so inference and training run the same code."""
+    device = next(stage.parameters()).device
+    inputs = {k: v[None] for k, v in stage.prepare(frame, kp2d, kp3d, device).items()}
+    d2, d3 = torch.nn.Module.__call__(stage, inputs, features.desc2d.to(device)[None], features.desc3d.to(device)[None])
+    return Features(desc2d=d2[0].float(), desc3d=d3[0].float())
+
+
 class BatchForward:
     """The learned stages of a pipeline applied to a collated batch: features, then the matcher's mean loss."""
 

@@ -33,6 +33,7 @@ from i2pbench_edgeregnet.pointnet2 import farthest_point_sampling
 from torch import nn
 
 from i2pbench.api import Component, Exchanger, Features, Frame, Keypoints2D, Keypoints3D, LearnedComponent, StageError
+from i2pbench.batching import exchange_one_frame
 
 from .frame_norm import FrameMLP
 
@@ -150,10 +151,7 @@ class CorrI2PExchanger(LearnedComponent, Exchanger):
                 )
         if len(kp2d) == 0 or len(kp3d) == 0:  # nothing to attend to; the matcher will find no match
             return features
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, kp3d, device).items()}
-        d2, d3 = nn.Module.__call__(self, inputs, features.desc2d.to(device)[None], features.desc3d.to(device)[None])
-        return Features(desc2d=d2[0].float(), desc3d=d3[0].float())
+        return exchange_one_frame(self, frame, kp2d, kp3d, features)
 
     def forward(
         self,

@@ -32,9 +32,9 @@ from i2pbench_corri2p.exchange import expand, masked_mean, pool_nodes, width_mis
 from i2pbench_corri2p.points import linear_mlp
 from i2pbench_edgeregnet.pointnet2 import farthest_point_sampling, gather
 from scipy.spatial import cKDTree
-from torch import nn
 
 from i2pbench.api import Component, Exchanger, Features, Frame, Keypoints2D, Keypoints3D, LearnedComponent, StageError
+from i2pbench.batching import exchange_one_frame
 
 from .positions import feature_width, fourier_features, normalised_pixels
 
@@ -108,10 +108,7 @@ class DeepI2PFusion(LearnedComponent, Exchanger):
                 )
         if len(kp2d) == 0 or len(kp3d) == 0:  # no image to fuse, or no point to fuse it into
             return features
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, kp3d, device).items()}
-        d2, d3 = nn.Module.__call__(self, inputs, features.desc2d.to(device)[None], features.desc3d.to(device)[None])
-        return Features(desc2d=d2[0].float(), desc3d=d3[0].float())
+        return exchange_one_frame(self, frame, kp2d, kp3d, features)
 
     def forward(
         self,

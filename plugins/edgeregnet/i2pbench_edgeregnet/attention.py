@@ -19,6 +19,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from i2pbench.api import Component, Exchanger, Features, Frame, Keypoints2D, Keypoints3D, LearnedComponent, StageError
+from i2pbench.batching import exchange_one_frame
 
 from .matching import descriptor_dim_mismatch
 from .pointnet2 import normalize_points
@@ -131,10 +132,7 @@ class AttentionExchanger(LearnedComponent, Exchanger):
             raise StageError(self.label, "needs descriptors on both sides (an encoder2d and an encoder3d)")
         if len(kp2d) == 0 or len(kp3d) == 0:  # nothing to attend to; the matcher will find no match
             return features
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, kp3d, device).items()}
-        d2, d3 = nn.Module.__call__(self, inputs, features.desc2d.to(device)[None], features.desc3d.to(device)[None])
-        return Features(desc2d=d2[0].float(), desc3d=d3[0].float())
+        return exchange_one_frame(self, frame, kp2d, kp3d, features)
 
     def forward(
         self,
