@@ -17,7 +17,7 @@ from typing import NoReturn
 
 from .errors import I2PBenchError
 
-COMMANDS = ("plugins", "run", "train", "diagnose", "domain-gap", "data", "compare", "evaluate", "viz", "report")
+COMMANDS = ("plugins", "run", "train", "diagnose", "domain-gap", "data", "compare", "table", "evaluate", "viz", "report")
 PIPELINE_COMMANDS = ("run", "train", "viz")  # those that build pipelines, which read the stage time limit
 # each command's one-line help, shown without importing its module (a command left out is imported to build --help);
 # tests/test_cli_startup.py checks they equal the modules' own
@@ -29,6 +29,7 @@ SUMMARIES = {
     "domain-gap": "edge, LiDAR and image statistics of two datasets side by side",
     "data": "dataset utilities",
     "compare": "compare a new leaderboard with a baseline under per-metric tolerances (exit 1 on a regression)",
+    "table": "a preset's rows across several datasets' leaderboards, as a paper's table",
     "evaluate": "recompute metrics and the leaderboard from a runs directory, no stage run",
     "viz": "draw one frame's LiDAR points under the initial, ground-truth and predicted poses",
     "report": "write a self-contained HTML report of a runs directory (e.g. runs/kitti-all)",

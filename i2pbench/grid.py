@@ -48,9 +48,9 @@ def base_combinations(registry: Registry, preset: str | None, stages_named: bool
         )
     combinations: list[dict[str, str]] = []
     for name in (preset or "default").split(","):  # "a,b": the union of presets, each combination once
-        for combination in registry.preset(name.strip()).combinations:
-            if dict(combination) not in combinations:
-                combinations.append(dict(combination))
+        for combination in registry.preset_rows(name.strip()):
+            if combination not in combinations:
+                combinations.append(combination)
     return combinations
 
 

@@ -65,7 +65,9 @@ def register_presets(register: Register) -> None:
     """Register named lists of stage combinations: `register(name, combinations, description)`.
 
     `combinations` is a list of dicts mapping stage kinds (e.g. "extractor2d") to component names; kinds left out take
-    the default pipeline's choice. The preset named "default" is what `i2pbench run` uses with no stage options.
+    the default pipeline's choice. An entry may instead be another preset's name (a str): its rows, in place, so a
+    comparison across several plugins' methods names their presets rather than copying them. The preset named
+    "default" is what `i2pbench run` uses with no stage options.
     """
 
 

@@ -59,8 +59,11 @@ class PluginInfo:
 
 @dataclass(frozen=True)
 class Preset:
+    """A named list of rows: combinations, or (a str) the name of another preset whose rows come in its place, so a
+    table spanning several plugins' methods (a paper's comparison) is declared without copying their rows."""
+
     name: str
-    combinations: tuple[dict[str, str], ...]
+    combinations: tuple[dict[str, str] | str, ...]
     description: str
     plugin: str
     method: str = ""  # the method that declared it ("": registered by register_presets)
@@ -125,6 +128,25 @@ class Registry:
 
     def preset(self, name: str) -> Preset:
         return self.presets[_lookup(self.presets, name, "preset")]
+
+    def preset_rows(self, name: str, _within: tuple[str, ...] = ()) -> list[dict[str, str]]:
+        """The preset's combinations, included presets expanded in place (resolved now, so plugins may register
+        in any order); an included preset no loaded plugin registers, or a cycle, is an error naming both."""
+        preset = self.preset(name)
+        rows: list[dict[str, str]] = []
+        for entry in preset.combinations:
+            if not isinstance(entry, str):
+                rows.append(dict(entry))
+                continue
+            if entry in (*_within, preset.name):
+                raise PluginError(f"preset {preset.name!r} (plugin {preset.plugin!r}) includes itself via {entry!r}")
+            if entry not in self.presets:
+                raise PluginError(
+                    f"preset {preset.name!r} (plugin {preset.plugin!r}) includes preset {entry!r}, which no loaded "
+                    "plugin registers: install the plugin that declares it"
+                )
+            rows.extend(self.preset_rows(entry, (*_within, preset.name)))
+        return rows
 
     def method(self, name: str) -> Method:
         return self.methods[_lookup(self.methods, name, "method")][0]
@@ -296,7 +318,8 @@ def _add_preset(
 ) -> None:
     if name in registry.presets:
         raise PluginError(f"preset {name!r} is registered by both {registry.presets[name].plugin!r} and {plugin!r}")
-    registry.presets[name] = Preset(name, tuple(dict(c) for c in combinations), description, plugin, method)
+    rows = tuple(c if isinstance(c, str) else dict(c) for c in combinations)
+    registry.presets[name] = Preset(name, rows, description, plugin, method)
 
 
 def _add_method(registry: Registry, plugin: str, method: Any) -> None:

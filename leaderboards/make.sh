@@ -27,12 +27,24 @@ board kitti-real-04 --preset "$PRESETS" --dataset kitti --split train --data-roo
 board kitti-real-26 --preset "$PRESETS" --dataset kitti --split val --data-root "$DATA/kitti_real"
 # nuScenes: ten keyframes of scene-0916 (devkit val split), all six cameras
 root="$RUNS/nuscenes-real-dataroot"
-case "nuscenes-real" in *"$ONLY"*)
+case "nuscenes-real paper-table-1" in *"$ONLY"*)
     [ -d "$root/v1.0-trainval" ] || .venv/bin/i2pbench data nuscenes-dataroot --records "$DATA/nuscenes_real" --out "$root"
     ;;
 esac
-board nuscenes-real --preset baselines --dataset nuscenes --split val --data-root "$root" \
-    --data-conf 'cameras=[CAM_FRONT, CAM_FRONT_LEFT, CAM_FRONT_RIGHT, CAM_BACK, CAM_BACK_LEFT, CAM_BACK_RIGHT]'
+NUSCENES=(--dataset nuscenes --split val --data-root "$root"
+    --data-conf 'cameras=[CAM_FRONT, CAM_FRONT_LEFT, CAM_FRONT_RIGHT, CAM_BACK, CAM_BACK_LEFT, CAM_BACK_RIGHT]')
+board nuscenes-real --preset baselines "${NUSCENES[@]}"
+# The seed paper's Table I (plugins/tables): every method on the same frames and transforms of each dataset, then
+# one table with a column group per dataset (held-out real KITTI 26, the nuScenes keyframes, the synthetic test split)
+board paper-table-1-synthetic --preset paper-table-1 --dataset synthetic --split test
+board paper-table-1-kitti --preset paper-table-1 --dataset kitti --split val --data-root "$DATA/kitti_real"
+board paper-table-1-nuscenes --preset paper-table-1 "${NUSCENES[@]}"
+case "paper-table-1" in *"$ONLY"*)
+    .venv/bin/i2pbench table --preset paper-table-1 --out leaderboards/paper-table-1 >/dev/null \
+        KITTI=leaderboards/paper-table-1-kitti.csv nuScenes=leaderboards/paper-table-1-nuscenes.csv \
+        synthetic=leaderboards/paper-table-1-synthetic.csv
+    ;;
+esac
 # Robustness (docs/robustness.md): clean, then all twelve corruptions at severities 1, 3, 5, on the first 10 frames
 ROBUST=(--robustness --severities 1,3,5 --frames 10)
 CLASSIC=(--matcher oracle --extractor lsd,canny --extractor3d depth+reflectance --solver epnp-ransac,poselib)

@@ -1,0 +1,129 @@
+"""A paper-style comparison table: a preset's rows (methods) down, one column group per dataset across.
+
+A leaderboard holds one dataset split; a paper's comparison (the seed's Table I) puts methods in rows and datasets
+side by side. `build` reads one leaderboard per dataset and finds each preset row in each by its combination label
+(the clean protocol only), so the table shows what the leaderboards measured and nothing recomputed: per dataset
+RTE, RRE, Acc. with its chance successes and true matches, and latency; once per row the weights and model size.
+A row a board lacks is "not run" there, never silently zero.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from .errors import I2PBenchError
+from .grid import expand
+from .leaderboard import ACC, CHANCE, LATENCY_MEDIAN, MODEL_SIZE, RRE, RTE, TRUE_MATCHES, to_markdown
+from .plugins import Registry
+
+PER_DATASET = ("frames", RTE, RRE, ACC, CHANCE, TRUE_MATCHES, LATENCY_MEDIAN)
+COUNTS = ("frames", CHANCE)  # shown as whole numbers
+NOT_RUN = "not run"
+
+
+@dataclass(frozen=True)
+class TableRow:
+    """One row: the preset entry it comes from (an included preset's name, or a combination) and its board label."""
+
+    name: str
+    label: str  # the leaderboard's `combination` column for this row
+    description: str = ""
+
+
+def preset_rows(registry: Registry, preset: str) -> list[TableRow]:
+    """The preset's rows in its own order, each named by the preset entry that contributes it."""
+    rows: list[TableRow] = []
+    for entry in registry.preset(preset).combinations:
+        if isinstance(entry, str):
+            combinations = expand(registry.preset_rows(entry), {}, registry=registry)
+            included = registry.preset(entry)
+            name = f"{included.method} ({entry})" if included.method and included.method != entry else entry
+            description = included.description
+        else:
+            combinations, description = expand([entry], {}, registry=registry), ""
+            name = ""
+        for combination in combinations:
+            label = combination.display
+            shown = f"{name}: {label}" if name and len(combinations) > 1 else name or label
+            rows.append(TableRow(shown, label, description))
+    return rows
+
+
+def build(rows: list[TableRow], boards: dict[str, pd.DataFrame]) -> pd.DataFrame:
+    """Rows down, `PER_DATASET` columns per board (named "<dataset> <column>") across, weights and size once."""
+    if not boards:
+        raise I2PBenchError("a comparison table needs at least one leaderboard (DATASET=PATH)")
+    out = []
+    for row in rows:
+        cells: dict[str, object] = {"method": row.name}
+        weights, trained_on, sizes = [], [], []
+        for dataset, board in boards.items():
+            found = _clean(board)[lambda b, label=row.label: b["combination"] == label]
+            if found.empty:
+                cells.update({f"{dataset} {column}": None for column in PER_DATASET})
+                continue
+            first = found.iloc[0]
+            cells.update({f"{dataset} {column}": first.get(column) for column in PER_DATASET})
+            weights.append(str(first.get("weights", "")))
+            trained_on.append(str(first.get("weights_trained_on", "")))
+            sizes.append(first.get(MODEL_SIZE))
+        cells["weights"] = " / ".join(dict.fromkeys(w for w in weights if w)) or NOT_RUN
+        cells["weights_trained_on"] = " / ".join(dict.fromkeys(t for t in trained_on if t and t != "nan"))
+        cells[MODEL_SIZE] = sizes[0] if sizes else None
+        cells["combination"] = row.label
+        out.append(cells)
+    return pd.DataFrame(out)
+
+
+def _clean(board: pd.DataFrame) -> pd.DataFrame:
+    """The rows of the uncorrupted protocol (a robustness board also holds corrupted ones)."""
+    if "corruption" not in board:
+        return board
+    corruption = board["corruption"].fillna("").astype(str)
+    return board[corruption.isin(["", "nan"])]
+
+
+def missing(table: pd.DataFrame, datasets: list[str]) -> dict[str, list[str]]:
+    """dataset -> the rows its leaderboard lacks."""
+    return {d: list(table.loc[table[f"{d} frames"].isna(), "method"]) for d in datasets}
+
+
+def to_text(table: pd.DataFrame, rows: list[TableRow], sources: dict[str, str]) -> str:
+    """The Markdown table, then where each dataset's numbers come from, the rows it lacks and what each row is."""
+    shown = _shown(table.drop(columns="combination"))
+    lines = [to_markdown(shown, list(shown.columns)), ""]
+    for dataset, lacking in missing(table, list(sources)).items():
+        absent = f"; {NOT_RUN} there: {', '.join(lacking)}" if lacking else ""
+        lines.append(f"- {dataset}: `{sources[dataset]}`{absent}")
+    lines += [f"- {row.name}: {row.description}" for row in rows if row.description]
+    return "\n".join(lines)
+
+
+def _shown(table: pd.DataFrame) -> pd.DataFrame:
+    """Cells as text: counts whole, other numbers to two decimals, a missing cell "-"."""
+    shown = table.astype(object)
+    for column in table.columns:
+        whole = column.endswith(COUNTS)
+        shown[column] = table[column].map(lambda v, whole=whole: _cell(v, whole))
+    return shown
+
+
+def _cell(value: object, whole: bool) -> str:
+    if value is None or (isinstance(value, float) and pd.isna(value)):
+        return "-"
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        return f"{value:.0f}" if whole else f"{value:.2f}"
+    return str(value)
+
+
+def write(table: pd.DataFrame, text: str, stem: str | Path) -> list[Path]:
+    """`<stem>.csv` (the numbers) and `<stem>.md` (the table and its notes)."""
+    stem = Path(stem)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    csv, md = stem.with_name(f"{stem.name}.csv"), stem.with_name(f"{stem.name}.md")
+    table.to_csv(csv, index=False, na_rep="nan")
+    md.write_text(text + "\n")
+    return [csv, md]

@@ -1,0 +1,115 @@
+"""A preset may name other presets (a table across plugins' methods), and `i2pbench table` lays one preset's rows
+out across several datasets' leaderboards, finding each row by its label in the clean protocol, never inventing
+a number for a row a board lacks."""
+
+import math
+import types
+
+import pandas as pd
+import pytest
+import toy_plugin
+
+from i2pbench import comparison
+from i2pbench.cli import main
+from i2pbench.errors import PluginError
+from i2pbench.grid import base_combinations
+from i2pbench.leaderboard import ACC, CHANCE, MODEL_SIZE, RTE, TRUE_MATCHES, write
+from i2pbench.plugins import build_registry, default_registry
+
+TRUTH = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
+CONSTANT = {**TRUTH, "solver": "constant"}
+
+
+@pytest.fixture
+def only_toys(monkeypatch):
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+
+
+def _tables_plugin(*presets):
+    """A plugin registering (name, entries) presets, as a third party's tables package would."""
+
+    def register_presets(register):
+        for name, entries in presets:
+            register(name, list(entries), f"{name} rows")
+
+    return types.SimpleNamespace(register_presets=toy_plugin.hookimpl(register_presets))
+
+
+def _registry(*presets):
+    return build_registry((toy_plugin, _tables_plugin(*presets)), strict=True)
+
+
+def test_an_included_preset_gives_its_rows_in_place_and_in_order(only_toys):
+    registry = _registry(("consts", [CONSTANT]), ("table", ["consts", TRUTH, "default"]))
+    assert registry.preset_rows("table") == [CONSTANT, TRUTH, TRUTH]
+    assert base_combinations(registry, "table") == [CONSTANT, TRUTH]  # as a run's rows: each combination once
+
+
+def test_an_included_preset_no_plugin_registers_and_a_cycle_are_errors_naming_them(only_toys):
+    registry = _registry(("table", ["default", "corri2p"]), ("a", ["b"]), ("b", ["a"]))
+    with pytest.raises(PluginError, match="preset 'table' .*includes preset 'corri2p', which no loaded plugin"):
+        registry.preset_rows("table")
+    with pytest.raises(PluginError, match="includes itself via 'a'"):
+        registry.preset_rows("a")
+
+
+def test_the_paper_table_lists_the_seed_papers_methods_in_table_1_order():
+    registry = default_registry()
+    names = [row.name for row in comparison.preset_rows(registry, "paper-table-1")]
+    assert names == [
+        "deepi2p",
+        "deepi2p (deepi2p-frustum-3d)",
+        "deepi2p (deepi2p-frustum-2d)",
+        "corri2p",
+        "edgeregnet (default)",
+        "classic-oracle",
+    ]
+
+
+def _board(rows: list[dict]) -> pd.DataFrame:
+    base = {"weights": "none", "weights_trained_on": "", "corruption": "", "frames": 4, MODEL_SIZE: 0.0}
+    return pd.DataFrame([{**base, **row} for row in rows])
+
+
+ROWS = [comparison.TableRow("ours", "a > b"), comparison.TableRow("peer", "c > d")]
+
+
+def test_each_row_takes_its_own_board_row_of_the_clean_protocol_and_a_missing_one_stays_empty():
+    kitti = _board(
+        [
+            {"combination": "a > b", ACC: 75.0, CHANCE: 1, RTE: "0.50 ± 0.10", TRUE_MATCHES: 12.0, MODEL_SIZE: 9.4},
+            {"combination": "a > b", ACC: 25.0, CHANCE: 0, "corruption": "fog", RTE: "1.00 ± 0.20"},
+            {"combination": "c > d", ACC: 50.0, CHANCE: 2, RTE: "0.90 ± 0.30", TRUE_MATCHES: 3.0},
+        ]
+    )
+    nuscenes = _board([{"combination": "a > b", ACC: 10.0, CHANCE: 0, RTE: "1.50 ± 0.40", TRUE_MATCHES: 5.0}])
+    table = comparison.build(ROWS, {"KITTI": kitti, "nuScenes": nuscenes})
+    ours, peer = table.iloc[0], table.iloc[1]
+    assert (ours["KITTI Acc. (%) ↑"], ours["KITTI RTE (m) ↓"], ours["KITTI chance successes"]) == (
+        75.0,
+        "0.50 ± 0.10",
+        1,
+    )
+    assert (ours["nuScenes Acc. (%) ↑"], ours[MODEL_SIZE]) == (10.0, 9.4)
+    assert peer["KITTI true matches median ↑"] == 3.0
+    assert math.isnan(peer["nuScenes Acc. (%) ↑"]) and math.isnan(peer["nuScenes frames"])
+    assert comparison.missing(table, ["KITTI", "nuScenes"]) == {"KITTI": [], "nuScenes": ["peer"]}
+    text = comparison.to_text(table, ROWS, {"KITTI": "k.csv", "nuScenes": "n.csv"})
+    assert "- nuScenes: `n.csv`; not run there: peer" in text
+    assert "| peer | 4 | 0.90 ± 0.30 | - | 50.00 | 2 | 3.00 |" in text  # counts whole, numbers to 2 decimals
+
+
+def test_the_table_command_reads_leaderboards_and_refuses_a_name_given_twice(tmp_path, capsys):
+    label = "lsd > depth+reflectance > oracle > epnp-ransac"
+    write(
+        _board([{"combination": label, ACC: 100.0, CHANCE: 0, RTE: "0.03 ± 0.02", TRUE_MATCHES: 110.0}]), tmp_path / "k"
+    )
+    assert (
+        main(["table", "--preset", "classic-oracle", f"KITTI={tmp_path / 'k.csv'}", "--out", str(tmp_path / "t")]) == 0
+    )
+    out = capsys.readouterr().out
+    assert f"| {label} | 4 | 0.03 ± 0.02 | - | 100.00 | 0 | 110.00 |" in out  # a plain row is named by its label
+    assert (tmp_path / "t.md").read_text().startswith("| method | KITTI frames |")
+    assert pd.read_csv(tmp_path / "t.csv")["KITTI Acc. (%) ↑"].tolist() == [100.0]
+    assert main(["table", "--preset", "classic-oracle", f"A={tmp_path / 'k.csv'}", f"A={tmp_path / 'k.csv'}"]) == 2
+    assert "a column group's name is given twice" in capsys.readouterr().err
