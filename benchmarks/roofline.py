@@ -8,7 +8,11 @@ of a stage is the time its FLOPs would take at the measured rate of their kernel
 achieved/roofline is that time over the measured one. Uncounted work (elementwise ops, softmax, gathers, the
 farthest point sampling loop) shows as a lower ratio, not as FLOPs. See docs/performance.md.
 
-    .venv/bin/python benchmarks/roofline.py [--preset default|edgeregnet-full] [--device cpu|cuda] [--repeat 3] [--amp bf16]
+    .venv/bin/python benchmarks/roofline.py [--preset default|edgeregnet-full] [--device cpu|cuda] [--amp bf16]
+    .venv/bin/python benchmarks/roofline.py --preset edgeregnet-full --device cuda --amp off,bf16   # the GPU check
+
+`--amp off,bf16` measures both precisions in one process, each against the machine's rates in that precision, and
+ends with the per-frame latency of each: on a GPU that is the prepared check of the paper-size frame.
 """
 
 from __future__ import annotations
@@ -173,19 +177,34 @@ def main() -> None:
     parser.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
-    parser.add_argument("--amp", choices=("off", "bf16"), default="off", help="bf16: autocast stages, bf16 rates")
+    parser.add_argument("--amp", type=amp_modes, default=["off"], help="off, bf16 or off,bf16 (both, in turn)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    dtype = torch.bfloat16 if args.amp == "bf16" else torch.float32
-    print(f"torch {torch.__version__}, {args.device}, {args.threads} threads, median of {args.repeat}, amp {args.amp}")
-    before = machine_rates(args.device, args.repeat, dtype)
+    print(f"torch {torch.__version__}, {args.device}, {args.threads} threads, median of {args.repeat}")
     pipeline = build_pipeline(args.preset, args.device)
     n_keypoints = pipeline.stages["extractor2d"].conf["max_keypoints"]
     print(f"preset {args.preset}: {pipeline.combination.label}, {n_keypoints} + {n_keypoints} keypoints")
-    stages, uncounted = measure_stages(pipeline, n_keypoints, args.repeat, args.device, args.amp)
+    frame_seconds = {amp: run_precision(pipeline, n_keypoints, args, amp) for amp in args.amp}
+    print("\nper frame (learned stages): " + ", ".join(f"{amp} {s:.3f} s" for amp, s in frame_seconds.items()))
+
+
+def amp_modes(value: str) -> list[str]:
+    modes = [m.strip() for m in value.split(",") if m.strip()]
+    if not modes or set(modes) - {"off", "bf16"}:
+        raise argparse.ArgumentTypeError(f"{value!r}: expected off, bf16 or off,bf16")
+    return modes
+
+
+def run_precision(pipeline: Pipeline, n_keypoints: int, args: argparse.Namespace, amp: str) -> float:
+    """One precision's table (rates before and after the stages, in that precision); the frame's seconds."""
+    dtype = torch.bfloat16 if amp == "bf16" else torch.float32
+    print(f"\n=== amp {amp}")
+    before = machine_rates(args.device, args.repeat, dtype)
+    stages, uncounted = measure_stages(pipeline, n_keypoints, args.repeat, args.device, amp)
     print_stages(stages, print_rates(before, machine_rates(args.device, args.repeat, dtype)))
     total = sum(s.total for s in stages)
     print(f"\nFlopCounterMode without the CPU attention formula: {uncounted / 1e9:.1f} of {total / 1e9:.1f} GFLOP")
+    return sum(s.seconds for s in stages)
 
 
 if __name__ == "__main__":
