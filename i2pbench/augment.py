@@ -1,9 +1,11 @@
-"""Photometric augmentation of training images: domain randomisation against the gap between cameras and scenes.
+"""Training augmentations by name (`--augment photometric,lidar-dropout`), and the photometric one of images.
 
-Applied after extraction, so edge pixels stay where the clean image put them (the extractor outputs are cached per
-frame) and only what the 2D encoder sees changes: exposure (gamma), contrast, brightness, sensor noise and defocus.
-Each sample draws its own parameters from a generator seeded by (seed, sample index), so training stays a pure
-function of the seed. The LiDAR scan is untouched: its geometry carries the ground truth.
+Photometric augmentation is domain randomisation against the gap between cameras and scenes. Applied after
+extraction, so edge pixels stay where the clean image put them (the extractor outputs are cached per frame) and only
+what the 2D encoder sees changes: exposure (gamma), contrast, brightness, sensor noise and defocus. Each sample draws
+its own parameters from a generator seeded by (seed, sample index), so training stays a pure function of the seed.
+It leaves the scan untouched; `lidar-dropout` thins the scan (lidar_dropout.py), never moving a point, so the ground
+truth stays exact under both.
 """
 
 from __future__ import annotations
@@ -13,7 +15,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-AUGMENTATIONS = ("none", "photometric")
+from .lidar_dropout import LidarDropout
+
+AUGMENTATIONS = ("none", "photometric", "lidar-dropout")
 
 
 @dataclass(frozen=True)
@@ -37,7 +41,29 @@ class Photometric:
         return np.clip(np.rint(x), 0, 255).astype(np.uint8)
 
 
-def augmenter(name: str) -> Photometric | None:
-    if name not in AUGMENTATIONS:
-        raise ValueError(f"augmentation {name!r}: choose one of {', '.join(AUGMENTATIONS)}")
-    return Photometric() if name == "photometric" else None
+@dataclass(frozen=True)
+class Augmentation:
+    """what a `--augment` list turns on: an image augmentation and a scan one, each None when off."""
+
+    image: Photometric | None = None
+    lidar: LidarDropout | None = None
+
+
+def augmentation_names(text: str) -> list[str]:
+    """`"photometric, lidar-dropout"` -> the names, checked; "none" stands alone."""
+    names = [part.strip() for part in text.split(",")]
+    unknown = [n for n in names if n not in AUGMENTATIONS]
+    if unknown:
+        raise ValueError(f"augmentation {unknown[0]!r}: choose from {', '.join(AUGMENTATIONS)} (a comma list)")
+    if "none" in names and len(names) > 1:
+        raise ValueError(f"augmentation {text!r}: 'none' cannot be combined with others")
+    return names
+
+
+def augmentations(text: str) -> Augmentation:
+    """the augmentations a `--augment` value names."""
+    names = augmentation_names(text)
+    return Augmentation(
+        image=Photometric() if "photometric" in names else None,
+        lidar=LidarDropout() if "lidar-dropout" in names else None,
+    )

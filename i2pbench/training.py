@@ -19,7 +19,7 @@ import math
 import os
 import tempfile
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -37,6 +37,7 @@ from .metrics import pose_errors, success, summarize
 from .pipeline import Pipeline
 from .protocol import Protocol
 from .training_data import TrainingSamples, collate_samples
+from .training_mix import MixedSource
 from .types import Frame
 from .weights import file_digest, load_checkpoint, mismatch, save_checkpoint
 
@@ -164,9 +165,17 @@ class TrainModel(torch.nn.Module):
 
 class Trainer:
     def __init__(
-        self, pipeline: Pipeline, train_set: Dataset, val_set: Dataset | None, out: Path, config: TrainConfig
+        self,
+        pipeline: Pipeline,
+        train_set: Dataset,
+        val_set: Dataset | None,
+        out: Path,
+        config: TrainConfig,
+        mix: Sequence[MixedSource] = (),
     ) -> None:
+        """`mix`: datasets mixed into `train_set`, each with its share of the samples (training_mix.py)."""
         self.pipeline, self.train_set, self.val_set, self.out, self.config = pipeline, train_set, val_set, out, config
+        self.mix = tuple(mix)
         self.matcher = check_trainable(pipeline)
         self.dist = Distributed.from_env()
         self.device = pick_device(config.device)
@@ -184,7 +193,13 @@ class Trainer:
         # fused on CUDA: one kernel for all parameters, and no per-parameter step counter read back by the host
         self.optimizer = torch.optim.Adam(self.params, lr=config.lr, fused=self.device.type == "cuda")
         self.samples = TrainingSamples(
-            pipeline.stages, train_set, config.seed, config.cache_dir, epochs=config.epochs, augment=config.augment
+            pipeline.stages,
+            train_set,
+            config.seed,
+            config.cache_dir,
+            epochs=config.epochs,
+            augment=config.augment,
+            mix=self.mix,
         )
         self.step, self.seconds, self.validation = 0, 0.0, {}
         self.best: float | None = None
@@ -213,7 +228,7 @@ class Trainer:
         self.best = checkpoint.meta.get("best_acc")
         self.lineage = checkpoint.lineage
         before = checkpoint.meta.get("trained_on", {})
-        if before and _data_of(before) != _data_of(self.train_set.identity()):  # fine-tuning on other data
+        if before and _data_of(before) != _data_of(data_identity(self.train_set, self.mix)):  # on other data
             self.lineage.append({**_data_of(before), "steps": self.step})
             self.best = None  # a validation of the new phase is not comparable with the old one's
         note = self._load_optimizer()
@@ -409,8 +424,18 @@ def spread(ids: list[str], count: int) -> list[str]:
 
 
 def _data_of(identity: dict[str, Any]) -> dict[str, Any]:
-    """what names the training data (dataset, split, root), without counts or configs."""
-    return {k: identity.get(k) for k in ("dataset", "split", "root")}
+    """what names the training data (dataset, split, root; each mixed-in source's and its share), without counts or
+    configs; an unmixed run's is what it was before mixes existed, so its checkpoints resume as one phase."""
+    named = {k: identity.get(k) for k in ("dataset", "split", "root")}
+    if identity.get("mix"):
+        named["mix"] = [{**_data_of(m), "share": m.get("share")} for m in identity["mix"]]
+    return named
+
+
+def data_identity(train_set: Dataset, mix: Sequence[MixedSource] = ()) -> dict[str, Any]:
+    """the training data's identity: the main dataset's, and under "mix" each mixed-in source's with its share."""
+    identity = {**train_set.identity(), "frames": len(train_set.frame_ids())}
+    return {**identity, "mix": [m.identity() for m in mix]} if mix else identity
 
 
 def _one_thread(_: int) -> None:
@@ -472,7 +497,9 @@ def _summary_writer(directory: Path) -> Any:
     return SummaryWriter(log_dir=str(directory))
 
 
-def training_meta(train_set: Dataset, config: TrainConfig, world: int = 1) -> dict[str, Any]:
-    trained_on = {**train_set.identity(), "frames": len(train_set.frame_ids())}
+def training_meta(
+    train_set: Dataset, config: TrainConfig, world: int = 1, mix: Sequence[MixedSource] = ()
+) -> dict[str, Any]:
+    trained_on = data_identity(train_set, mix)
     effective = world * config.accumulate * config.batch_size
     return {"trained_on": trained_on, "train_config": {**asdict(config), "ranks": world, "effective_batch": effective}}

@@ -42,16 +42,22 @@ class Checkpoint:
     @property
     def trained_on(self) -> str:
         """`dataset/split, N steps`, after the stages it was fine-tuned from: `synthetic/train 6500 + kitti/train,
-        7000 steps` (steps are cumulative: the last figure is the checkpoint's total)."""
-        data = self.meta.get("trained_on", {})
-        here = f"{data.get('dataset', '?')}/{data.get('split', '?')}, {self.meta.get('steps', '?')} steps"
-        earlier = [f"{d.get('dataset', '?')}/{d.get('split', '?')} {d.get('steps', '?')}" for d in self.lineage]
+        7000 steps` (steps are cumulative: the last figure is the checkpoint's total); a mixed-in source follows its
+        phase's main dataset with its share: `synthetic/train + kitti/train (0.5), 7000 steps`."""
+        here = f"{data_label(self.meta.get('trained_on', {}))}, {self.meta.get('steps', '?')} steps"
+        earlier = [f"{data_label(d)} {d.get('steps', '?')}" for d in self.lineage]
         return " + ".join([*earlier, here])
 
     @property
     def lineage(self) -> list[dict[str, Any]]:
         """the data of earlier training phases this checkpoint continued from, oldest first."""
         return list(self.meta.get("lineage", []))
+
+
+def data_label(data: dict[str, Any]) -> str:
+    """`dataset/split` of a training phase's data, then `+ dataset/split (share)` per mixed-in source."""
+    mixed = [f" + {m.get('dataset', '?')}/{m.get('split', '?')} ({m.get('share', '?')})" for m in data.get("mix", [])]
+    return f"{data.get('dataset', '?')}/{data.get('split', '?')}" + "".join(mixed)
 
 
 def file_digest(path: Path) -> str:

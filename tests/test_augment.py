@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import toy_plugin
 
-from i2pbench.augment import Photometric, augmenter
+from i2pbench.augment import Photometric, augmentations
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import build_registry
 from i2pbench.training_data import TrainingSamples
@@ -28,7 +28,9 @@ def test_training_samples_augment_the_image_only_and_per_sample_seed(monkeypatch
     names = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
     stages = Pipeline.build(registry, Combination(names)).stages
     seen = []
-    monkeypatch.setattr(TrainingSamples, "_prepare", lambda self, kind, frame, kp2d, kp3d: seen.append(frame) or {})
+    monkeypatch.setattr(
+        TrainingSamples, "_prepare", lambda self, kind, frame, kp2d, kp3d, caches: seen.append(frame) or {}
+    )
 
     class Grey(toy_plugin.ToyDataset):
         def frame_ids(self):
@@ -47,8 +49,8 @@ def test_training_samples_augment_the_image_only_and_per_sample_seed(monkeypatch
     np.testing.assert_array_equal(first.image, again.image)  # a function of (seed, sample index)
     np.testing.assert_array_equal(first.points, clean.points)
     np.testing.assert_array_equal(first.T_gt, clean.T_gt)
-    with pytest.raises(ValueError, match="choose one of none, photometric"):
-        augmenter("fog")
+    with pytest.raises(ValueError, match="'fog': choose from none, photometric, lidar-dropout"):
+        augmentations("fog")
 
 
 class _Prepared:
@@ -63,4 +65,4 @@ def test_the_trainer_hands_its_augmentation_to_its_samples(monkeypatch, tmp_path
 
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
     trainers = [toy.varied_trainer(tmp_path / f"{a}.pt", augment=a) for a in ("none", "photometric")]
-    assert trainers[0].samples.augment is None and isinstance(trainers[1].samples.augment, Photometric)
+    assert trainers[0].samples.augment.image is None and isinstance(trainers[1].samples.augment.image, Photometric)

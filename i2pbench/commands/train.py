@@ -7,8 +7,13 @@ import os
 import sys
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .run import STAGE_OPTIONS, parse_data_conf, positive_int, yaml_setting
+
+if TYPE_CHECKING:  # the CLI starts without importing the training code
+    from ..data.base import Dataset
+    from ..training_mix import MixedSource, SourceSpec
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -19,7 +24,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--conf", action="append", default=[], metavar="KIND.KEY=VALUE", help="component config override")
     p.add_argument("--dataset", default="synthetic")
     p.add_argument("--split", default="train")
-    p.add_argument("--val-split", default="val", help="split for the periodic validation ('none' to skip)")
+    p.add_argument(
+        "--mix",
+        action="append",
+        default=[],
+        metavar="DATASET:SPLIT[@ROOT]=SHARE",
+        help="also draw this share of the samples from another dataset split (repeatable; e.g. kitti:train@DIR=0.5)",
+    )
+    p.add_argument("--val-split", help="split of --dataset for the periodic validation (default val; 'none' skips)")
+    p.add_argument("--val-dataset", metavar="DATASET:SPLIT[@ROOT]", help="validate on this split instead")
     p.add_argument("--data-root", help="dataset root directory (else I2PBENCH_<NAME>_ROOT)")
     p.add_argument(
         "--data-conf",
@@ -44,7 +57,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--warmup-steps", type=non_negative_int, default=0, help="linear learning-rate warm-up")
     p.add_argument("--schedule", choices=("constant", "cosine"), default="constant", help="after the warm-up")
     p.add_argument("--grad-clip", type=float, default=1.0, help="gradient-norm clip")
-    p.add_argument("--augment", choices=("none", "photometric"), default="none", help="per-sample image augmentation")
+    p.add_argument(
+        "--augment",
+        type=augment_list,
+        default="none",
+        metavar="NAMES",
+        help="per-sample augmentation: none, photometric, lidar-dropout, or a comma list",
+    )
     p.add_argument("--amp", choices=("off", "bf16"), default="off", help="bf16 autocast of the learned stages")
     p.add_argument("--deterministic", action="store_true", help="deterministic kernels only (GPU reruns bit-exact)")
     p.add_argument(
@@ -75,6 +94,50 @@ def non_negative_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{text!r} is not 0 or a positive integer") from None
 
 
+def augment_list(text: str) -> str:
+    """An argparse type: a comma list of augmentation names, checked and normalised ("a, b" -> "a,b")."""
+    from ..augment import augmentation_names
+
+    try:
+        return ",".join(augmentation_names(text))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _source_specs(args: argparse.Namespace) -> tuple[list[SourceSpec], SourceSpec | None]:
+    """--mix and --val-dataset parsed and checked, before any work."""
+    from ..errors import I2PBenchError
+    from ..training_mix import SourceSpec, check_mix, parse_source
+
+    mix = [parse_source(text, "--mix", with_share=True) for text in args.mix]
+    check_mix(SourceSpec(args.dataset, args.split, args.data_root), mix)
+    if mix and args.epochs is not None:
+        raise I2PBenchError("--epochs counts passes over one split; with --mix give --steps")
+    if args.val_dataset and args.val_split:
+        raise I2PBenchError("--val-split names a split of --dataset; with --val-dataset give the split there")
+    val = parse_source(args.val_dataset, "--val-dataset", with_share=False) if args.val_dataset else None
+    return mix, val
+
+
+def _datasets(
+    registry, args: argparse.Namespace, mix_specs: list[SourceSpec], val_spec: SourceSpec | None
+) -> tuple[Dataset, Dataset | None, list[MixedSource]]:
+    """(train set, val set or None, mixed-in sources); each --mix and --val-dataset split is listed now, so a
+    wrong one stops the run before the pipeline is built."""
+    from ..training_mix import MixedSource, open_source
+
+    data_conf = parse_data_conf(args.data_conf)
+    if args.data_root:
+        data_conf["root"] = args.data_root
+    train_set = registry.dataset(args.dataset)(args.split, data_conf)
+    mix = [MixedSource(open_source(registry, spec, "--mix"), spec.share) for spec in mix_specs]
+    if val_spec is not None:
+        return train_set, open_source(registry, val_spec, "--val-dataset"), mix
+    val_split = args.val_split or "val"
+    val_set = None if val_split == "none" else registry.dataset(args.dataset)(val_split, data_conf)
+    return train_set, val_set, mix
+
+
 def _combination(registry, args: argparse.Namespace):
     from ..grid import base_combinations, expand, parse_conf_overrides
 
@@ -91,18 +154,16 @@ def run(args: argparse.Namespace) -> int:
     from ..pipeline import Pipeline
     from ..plugins import default_registry
     from ..runs.environment import fix_threads
-    from ..training import TrainConfig, Trainer, steps_for_epochs, training_meta
+    from ..training import TrainConfig, Trainer, data_identity, steps_for_epochs, training_meta
+    from ..weights import data_label
 
+    mix_specs, val_spec = _source_specs(args)
     device = resolve_device(args.device)
     fix_threads(args.threads)
     registry = default_registry()
+    train_set, val_set, mix = _datasets(registry, args, mix_specs, val_spec)
     torch.manual_seed(args.seed)  # initial weights: two runs with one seed start (and end) alike
     pipeline = Pipeline.build(registry, _combination(registry, args))
-    data_conf = parse_data_conf(args.data_conf)
-    if args.data_root:
-        data_conf["root"] = args.data_root
-    train_set = registry.dataset(args.dataset)(args.split, data_conf)
-    val_set = None if args.val_split == "none" else registry.dataset(args.dataset)(args.val_split, data_conf)
     config = TrainConfig(
         steps=args.steps,
         batch_size=args.batch_size,
@@ -128,13 +189,14 @@ def run(args: argparse.Namespace) -> int:
         world = int(os.environ.get("WORLD_SIZE", 1))
         config = replace(config, steps=steps_for_epochs(args.epochs, len(train_set.frame_ids()), config, world))
     out = Path(args.out)
-    trainer = Trainer(pipeline, train_set, val_set, out, config)
+    trainer = Trainer(pipeline, train_set, val_set, out, config, mix)
     resumed = trainer.resume()
     main = trainer.dist.main
     if main:
+        data = data_label(data_identity(train_set, mix))
         print(
-            f"training {pipeline.combination.label} ({pipeline.model_size_mb():.2f} MB) on {args.dataset}/"
-            f"{args.split}, effective batch {trainer.dist.world * config.accumulate * config.batch_size}"
+            f"training {pipeline.combination.label} ({pipeline.model_size_mb():.2f} MB) on {data}, "
+            f"effective batch {trainer.dist.world * config.accumulate * config.batch_size}"
             f"{f'; {resumed}' if resumed else ''}"
             f"{f'; compiled {len(trainer.compiled)} blocks ({args.compile})' if trainer.compiled else ''}",
             file=sys.stderr,
@@ -153,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
 
     log = Path(args.log) if args.log else out.with_name(out.name + ".log.jsonl")
     board = Path(args.tensorboard) if args.tensorboard else None
-    trainer.run(training_meta(train_set, config, trainer.dist.world), report, log=log, tensorboard=board)
+    trainer.run(training_meta(train_set, config, trainer.dist.world, mix), report, log=log, tensorboard=board)
     bar.close()
     if main:
         print(f"checkpoint: {args.out} (step {trainer.step}); validation: {trainer.validation}", file=sys.stderr)
