@@ -17,7 +17,19 @@ from typing import NoReturn
 
 from .errors import I2PBenchError
 
-COMMANDS = ("plugins", "run", "train", "diagnose", "domain-gap", "data", "compare", "table", "evaluate", "viz", "report")
+COMMANDS = (
+    "plugins",
+    "run",
+    "train",
+    "diagnose",
+    "domain-gap",
+    "data",
+    "compare",
+    "table",
+    "evaluate",
+    "viz",
+    "report",
+)
 PIPELINE_COMMANDS = ("run", "train", "viz")  # those that build pipelines, which read the stage time limit
 # each command's one-line help, shown without importing its module (a command left out is imported to build --help);
 # tests/test_cli_startup.py checks they equal the modules' own

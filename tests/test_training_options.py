@@ -29,7 +29,9 @@ def test_compiling_the_attention_blocks_keeps_outputs_and_parameter_names():
     with torch.no_grad():
         eager = torch.nn.Module.__call__(exchanger, inputs, d2, d3, mask2d, mask3d)
         keys = list(exchanger.state_dict())
-        compiled = compile_stages({"exchanger": exchanger, "encoder3d": PointNet2Encoder(TINY["encoder3d"])}, "aot_eager")
+        compiled = compile_stages(
+            {"exchanger": exchanger, "encoder3d": PointNet2Encoder(TINY["encoder3d"])}, "aot_eager"
+        )
         again = torch.nn.Module.__call__(exchanger, inputs, d2, d3, mask2d, mask3d)
     assert compiled == ["exchanger.ExchangeBlock"] * TINY["exchanger"]["num_blocks"]  # PointNet++: data-dependent
     assert list(exchanger.state_dict()) == keys  # checkpoints stay loadable either way
