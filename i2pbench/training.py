@@ -112,6 +112,14 @@ def _resume_path(out: Path) -> Path:
     return out.with_name(out.name + ".resume")
 
 
+def registered_pct(won: np.ndarray, true_matches: np.ndarray) -> float:
+    """% of frames registered with at least MIN_TRUE_MATCHES true matches: Acc. less its chance successes, what the
+    `best` checkpoint is judged by (a validation whose successes are luck would otherwise pick a lucky checkpoint)."""
+    if not len(won):
+        return math.nan
+    return 100.0 * float((won & (true_matches >= MIN_TRUE_MATCHES)).mean())
+
+
 def best_path(out: Path) -> Path:
     return out.with_name(f"{out.stem}.best{out.suffix}")
 
@@ -334,11 +342,12 @@ class Trainer:
         stats.update(
             true_matches_median=float(np.median(counts)) if len(counts) else math.nan,
             chance=float((won & (counts < MIN_TRUE_MATCHES)).sum()),  # successes a PnP cannot have earned
+            skill_acc_pct=registered_pct(won, counts),
         )
         return {"step": self.step, "frames": len(rte), **{k: v for k, v in stats.items() if not math.isnan(v)}}
 
     def save(self, meta: dict[str, Any]) -> None:
-        """checkpoint, then the resume file that names the checkpoint's bytes; `best` when val Acc. improved."""
+        """checkpoint, then the resume file that names the checkpoint's bytes."""
         save_checkpoint(self.out, self.pipeline, best_acc=self.best, **self._progress(), **meta)
         state = {
             "optimizer": self.optimizer.state_dict(),
@@ -362,7 +371,7 @@ class Trainer:
         self.validation = self.validate()
         if report and self.validation:
             report(self.step, {f"val_{k}": v for k, v in self.validation.items()})
-        acc = self.validation.get("acc_pct")  # summarize's key: with "acc" no best checkpoint was ever kept
+        acc = self.validation.get("skill_acc_pct")  # chance successes never make a checkpoint the best
         if acc is not None and (self.best is None or acc > self.best):
             self.best = acc
             save_checkpoint(best_path(self.out), self.pipeline, best_acc=acc, **self._progress(), **meta)

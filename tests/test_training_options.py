@@ -1,7 +1,9 @@
 """A researcher's training options: compiled blocks, deterministic kernels, TensorBoard, spread validation frames."""
 
 import json
+import math
 
+import numpy as np
 import pytest
 import torch
 from i2pbench_edgeregnet.attention import AttentionExchanger
@@ -9,7 +11,7 @@ from i2pbench_edgeregnet.pointnet2 import PointNet2Encoder
 from test_edgeregnet_training import TINY, one_thread  # noqa: F401 (an autouse fixture)
 from test_train_cli import train
 
-from i2pbench.training import compile_stages, spread
+from i2pbench.training import compile_stages, registered_pct, spread
 from i2pbench.weights import load_checkpoint
 
 
@@ -52,7 +54,7 @@ def test_deterministic_compiled_training_logs_scalars_to_tensorboard(shared_data
     last = load_checkpoint(out).meta
     config = last["train_config"]
     best = load_checkpoint(out.with_name("w.best.pt")).meta  # validation ran at step 2: the best so far is kept
-    assert best["steps"] == 2 and best["best_acc"] == last["validation"]["acc_pct"] == last["best_acc"]
+    assert best["steps"] == 2 and best["best_acc"] == last["validation"]["skill_acc_pct"] == last["best_acc"]
     assert config["deterministic"] is True and config["compile"] == "aot_eager"
     events = EventAccumulator(str(board))
     events.Reload()
@@ -62,3 +64,11 @@ def test_deterministic_compiled_training_logs_scalars_to_tensorboard(shared_data
     log = [json.loads(line) for line in (tmp_path / "w.pt.log.jsonl").read_text().splitlines()]
     assert [e.value for e in events.Scalars("train/loss")] == pytest.approx([r["loss"] for r in log])
     assert all(r["max_rss_mb"] > 0 for r in log)
+
+
+def test_the_best_checkpoint_is_judged_by_registrations_with_true_matches_not_by_chance():
+    won = np.array([True, True, True, False])
+    true_matches = np.array([12.0, 3.0, 0.0, 40.0])  # two successes with fewer than 4 true matches: chance
+    assert registered_pct(won, true_matches) == 25.0  # Acc. 75%, of which one frame in four earned
+    assert registered_pct(won, np.array([4.0, 4.0, 4.0, 4.0])) == 75.0  # 4 true matches is enough for a PnP
+    assert math.isnan(registered_pct(np.array([], bool), np.array([])))
