@@ -3,7 +3,8 @@
 A leaderboard holds one dataset split; a paper's comparison (the seed's Table I) puts methods in rows and datasets
 side by side. `build` reads one leaderboard per dataset and finds each preset row in each by its combination label
 (the clean protocol only), so the table shows what the leaderboards measured and nothing recomputed: per dataset
-RTE, RRE, Acc. with its chance successes and true matches, and latency; once per row the weights and model size.
+RTE, RRE, Acc. with its chance successes, Acc. with true matches, true matches and latency; once per row the
+weights and model size.
 A row a board lacks is "not run" there, never silently zero.
 """
 
@@ -16,10 +17,10 @@ import pandas as pd
 
 from .errors import I2PBenchError
 from .grid import expand
-from .leaderboard import ACC, CHANCE, LATENCY_MEDIAN, MODEL_SIZE, RRE, RTE, TRUE_MATCHES, to_markdown
+from .leaderboard import ACC, ACC_SKILL, CHANCE, LATENCY_MEDIAN, MODEL_SIZE, RRE, RTE, TRUE_MATCHES, to_markdown
 from .plugins import Registry
 
-PER_DATASET = ("frames", RTE, RRE, ACC, CHANCE, TRUE_MATCHES, LATENCY_MEDIAN)
+PER_DATASET = ("frames", RTE, RRE, ACC, CHANCE, ACC_SKILL, TRUE_MATCHES, LATENCY_MEDIAN)
 COUNTS = ("frames", CHANCE)  # shown as whole numbers
 NOT_RUN = "not run"
 
@@ -65,6 +66,9 @@ def build(rows: list[TableRow], boards: dict[str, pd.DataFrame]) -> pd.DataFrame
             if found.empty:
                 cells.update({f"{dataset} {column}": None for column in PER_DATASET})
                 continue
+            if len(found) > 1:  # one label, several weights: which row the table shows would be a guess
+                shown = ", ".join(map(str, found["weights"]))
+                raise I2PBenchError(f"leaderboard of {dataset} has {len(found)} rows {row.label!r} ({shown})")
             first = found.iloc[0]
             cells.update({f"{dataset} {column}": first.get(column) for column in PER_DATASET})
             weights.append(str(first.get("weights", "")))

@@ -11,9 +11,9 @@ import toy_plugin
 
 from i2pbench import comparison
 from i2pbench.cli import main
-from i2pbench.errors import PluginError
+from i2pbench.errors import I2PBenchError, PluginError
 from i2pbench.grid import base_combinations
-from i2pbench.leaderboard import ACC, CHANCE, MODEL_SIZE, RTE, TRUE_MATCHES, write
+from i2pbench.leaderboard import ACC, ACC_SKILL, CHANCE, MODEL_SIZE, RTE, TRUE_MATCHES, write
 from i2pbench.plugins import build_registry, default_registry
 
 TRUTH = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
@@ -77,9 +77,17 @@ ROWS = [comparison.TableRow("ours", "a > b"), comparison.TableRow("peer", "c > d
 def test_each_row_takes_its_own_board_row_of_the_clean_protocol_and_a_missing_one_stays_empty():
     kitti = _board(
         [
-            {"combination": "a > b", ACC: 75.0, CHANCE: 1, RTE: "0.50 ± 0.10", TRUE_MATCHES: 12.0, MODEL_SIZE: 9.4},
+            {
+                "combination": "a > b",
+                ACC: 75.0,
+                CHANCE: 1,
+                ACC_SKILL: 50.0,
+                RTE: "0.50 ± 0.10",
+                TRUE_MATCHES: 12.0,
+                MODEL_SIZE: 9.4,
+            },
             {"combination": "a > b", ACC: 25.0, CHANCE: 0, "corruption": "fog", RTE: "1.00 ± 0.20"},
-            {"combination": "c > d", ACC: 50.0, CHANCE: 2, RTE: "0.90 ± 0.30", TRUE_MATCHES: 3.0},
+            {"combination": "c > d", ACC: 50.0, CHANCE: 2, ACC_SKILL: 0.0, RTE: "0.90 ± 0.30", TRUE_MATCHES: 3.0},
         ]
     )
     nuscenes = _board([{"combination": "a > b", ACC: 10.0, CHANCE: 0, RTE: "1.50 ± 0.40", TRUE_MATCHES: 5.0}])
@@ -92,24 +100,36 @@ def test_each_row_takes_its_own_board_row_of_the_clean_protocol_and_a_missing_on
     )
     assert (ours["nuScenes Acc. (%) ↑"], ours[MODEL_SIZE]) == (10.0, 9.4)
     assert peer["KITTI true matches median ↑"] == 3.0
+    assert (ours["KITTI Acc. with true matches (%) ↑"], peer["KITTI Acc. with true matches (%) ↑"]) == (50.0, 0.0)
     assert math.isnan(peer["nuScenes Acc. (%) ↑"]) and math.isnan(peer["nuScenes frames"])
     assert comparison.missing(table, ["KITTI", "nuScenes"]) == {"KITTI": [], "nuScenes": ["peer"]}
     text = comparison.to_text(table, ROWS, {"KITTI": "k.csv", "nuScenes": "n.csv"})
     assert "- nuScenes: `n.csv`; not run there: peer" in text
-    assert "| peer | 4 | 0.90 ± 0.30 | - | 50.00 | 2 | 3.00 |" in text  # counts whole, numbers to 2 decimals
+    assert "| peer | 4 | 0.90 ± 0.30 | - | 50.00 | 2 | 0.00 | 3.00 |" in text  # counts whole, numbers to 2 decimals
 
 
 def test_the_table_command_reads_leaderboards_and_refuses_a_name_given_twice(tmp_path, capsys):
     label = "lsd > depth+reflectance > oracle > epnp-ransac"
     write(
-        _board([{"combination": label, ACC: 100.0, CHANCE: 0, RTE: "0.03 ± 0.02", TRUE_MATCHES: 110.0}]), tmp_path / "k"
+        _board(
+            [{"combination": label, ACC: 100.0, CHANCE: 0, ACC_SKILL: 100.0, RTE: "0.03 ± 0.02", TRUE_MATCHES: 110.0}]
+        ),
+        tmp_path / "k",
     )
     assert (
         main(["table", "--preset", "classic-oracle", f"KITTI={tmp_path / 'k.csv'}", "--out", str(tmp_path / "t")]) == 0
     )
     out = capsys.readouterr().out
-    assert f"| {label} | 4 | 0.03 ± 0.02 | - | 100.00 | 0 | 110.00 |" in out  # a plain row is named by its label
+    assert (
+        f"| {label} | 4 | 0.03 ± 0.02 | - | 100.00 | 0 | 100.00 | 110.00 |" in out
+    )  # a plain row is named by its label
     assert (tmp_path / "t.md").read_text().startswith("| method | KITTI frames |")
     assert pd.read_csv(tmp_path / "t.csv")["KITTI Acc. (%) ↑"].tolist() == [100.0]
     assert main(["table", "--preset", "classic-oracle", f"A={tmp_path / 'k.csv'}", f"A={tmp_path / 'k.csv'}"]) == 2
     assert "a column group's name is given twice" in capsys.readouterr().err
+
+
+def test_a_label_with_rows_of_two_weights_in_one_board_is_refused_not_guessed():
+    board = _board([{"combination": "a > b", "weights": w, ACC: 10.0} for w in ("one@1", "two@2")])
+    with pytest.raises(I2PBenchError, match=r"leaderboard of KITTI has 2 rows 'a > b' \(one@1, two@2\)"):
+        comparison.build(ROWS[:1], {"KITTI": board})
