@@ -6,10 +6,13 @@ import torch
 from i2pbench_edgeregnet.attention import normalize_pixels
 from i2pbench_edgeregnet.pointnet2 import (
     ball_query,
+    ball_query_torch,
     farthest_point_sampling,
+    farthest_point_sampling_torch,
     interpolate,
     normalize_points,
     three_nn,
+    three_nn_torch,
 )
 from i2pbench_edgeregnet.superpoint import sample_descriptors
 
@@ -45,23 +48,32 @@ def numpy_fps(xyz: np.ndarray, n: int, start: int = 0) -> np.ndarray:
     return np.array(chosen)
 
 
-def test_fps_matches_brute_force():
+FPS = pytest.mark.parametrize(
+    "fps", [farthest_point_sampling, farthest_point_sampling_torch], ids=["compiled", "torch"]
+)
+BALLS = pytest.mark.parametrize("balls", [ball_query, ball_query_torch], ids=["compiled", "torch"])
+
+
+@FPS
+def test_fps_matches_brute_force(fps):
     xyz = np.random.default_rng(0).normal(size=(200, 3)).astype(np.float32)
-    index = farthest_point_sampling(torch.from_numpy(xyz)[None], 50, start=7)[0].numpy()
+    index = fps(torch.from_numpy(xyz)[None], 50, start=7)[0].numpy()
     np.testing.assert_array_equal(index, numpy_fps(xyz, 50, start=7))
     assert len(set(index.tolist())) == 50
 
 
-def test_batched_fps_equals_one_frame_at_a_time():
+@FPS
+def test_batched_fps_equals_one_frame_at_a_time(fps):
     xyz = torch.from_numpy(np.random.default_rng(2).normal(size=(3, 400, 3)).astype(np.float32))
-    batched = farthest_point_sampling(xyz, 60)
+    batched = fps(xyz, 60)
     for b in range(3):
-        assert torch.equal(batched[b], farthest_point_sampling(xyz[b : b + 1], 60)[0])
+        assert torch.equal(batched[b], fps(xyz[b : b + 1], 60)[0])
         np.testing.assert_array_equal(batched[b].numpy(), numpy_fps(xyz[b].numpy(), 60))
 
 
-def test_fps_of_more_points_than_exist_takes_them_all_then_repeats_the_start():
-    index = farthest_point_sampling(torch.rand(1, 5, 3), 9)[0].tolist()
+@FPS
+def test_fps_of_more_points_than_exist_takes_them_all_then_repeats_the_start(fps):
+    index = fps(torch.rand(1, 5, 3), 9)[0].tolist()
     assert sorted(index[:5]) == [0, 1, 2, 3, 4] and index[5:] == [0, 0, 0, 0]
 
 
@@ -73,27 +85,31 @@ def brute_ball_query(xyz: np.ndarray, centres: np.ndarray, radius: float, nsampl
     return out
 
 
+@BALLS
 @pytest.mark.parametrize("nsample", [4, 16])
-def test_ball_query_matches_brute_force(nsample):
+def test_ball_query_matches_brute_force(nsample, balls):
     xyz = np.random.default_rng(1).uniform(-1, 1, (300, 3)).astype(np.float32)
     centres = xyz[::7]
-    index = ball_query(torch.from_numpy(xyz)[None], torch.from_numpy(centres)[None], 0.35, nsample, chunk=8)[0]
+    chunk = {"chunk": 8} if balls is ball_query_torch else {}
+    index = balls(torch.from_numpy(xyz)[None], torch.from_numpy(centres)[None], 0.35, nsample, **chunk)[0]
     np.testing.assert_array_equal(index.numpy(), brute_ball_query(xyz, centres, 0.35, nsample))
 
 
-def test_ball_query_pads_when_the_cloud_is_smaller_than_nsample():
+@BALLS
+def test_ball_query_pads_when_the_cloud_is_smaller_than_nsample(balls):
     xyz = torch.tensor([[0.0, 0, 0], [0.05, 0, 0], [5.0, 0, 0]])
-    assert ball_query(xyz[None], xyz[None, :1], 0.1, 4).tolist() == [[[0, 1, 0, 0]]]
+    assert balls(xyz[None], xyz[None, :1], 0.1, 4).tolist() == [[[0, 1, 0, 0]]]
 
 
-def test_three_nn_interpolation_by_hand():
+@pytest.mark.parametrize("nearest_of", [three_nn, three_nn_torch], ids=["compiled", "torch"])
+def test_three_nn_interpolation_by_hand(nearest_of):
     known = torch.tensor([[0.0, 0, 0], [2.0, 0, 0], [0.0, 10, 0], [50.0, 0, 0]])
     feats = torch.tensor([[1.0], [3.0], [100.0], [-1e6]])  # the 4th is never among the 3 nearest
     # distances 0.5, 1.5, sqrt(100.25); weights 1/d normalised
     w = np.array([1 / 0.5, 1 / 1.5, 1 / np.sqrt(100.25)])
     expected = (w * [1.0, 3.0, 100.0]).sum() / w.sum()
     queries = torch.tensor([[[0.5, 0, 0], [2.0, 0, 0]]])
-    nearest = three_nn(queries, known[None])
+    nearest = nearest_of(queries, known[None])
     assert sorted(nearest[0, 0].tolist()) == [0, 1, 2]
     out = interpolate(queries, known[None], feats[None], nearest)[0]
     assert out[0, 0].item() == pytest.approx(expected, rel=1e-5)

@@ -109,7 +109,9 @@ def test_one_frame_overfits():
         loss.backward()
         optimiser.step()
         losses.append(loss.item())
-    assert losses[-1] < 0.4 * losses[0]  # 12.3 -> 3.4 when written
+    # the last steps spike now and then (3.4 to 8.6 within steps 91-100, the spikes moved by float rounding alone):
+    # judge their median
+    assert np.median(losses[-10:]) < 0.4 * losses[0]  # 12.3 -> 3.5 (median of steps 91-100) when written
 
 
 def test_empty_keypoint_sets_give_no_match():
