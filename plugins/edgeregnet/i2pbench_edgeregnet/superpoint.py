@@ -84,6 +84,10 @@ class SuperPointEncoder(LearnedComponent, Encoder2D):
         self.backbone = nn.Sequential(*layers)
         head = self.conf["head_channels"]
         self.head = nn.Sequential(conv(c4, head), nn.ReLU(inplace=True), conv(head, self.conf["descriptor_dim"], 1))
+        # channels-last (NHWC) weights make oneDNN keep every activation in NHWC: no layout reorder around each conv,
+        # pooling vectorised over channels; 1.6-1.8x faster on this CPU, outputs equal to ~1e-8
+        # (tests/test_edgeregnet_layouts.py)
+        self.to(memory_format=torch.channels_last)
 
     def compile_targets(self) -> list[nn.Module]:
         """the VGG backbone and descriptor head: convolutions over a fixed image size (the sampling is left eager)."""
