@@ -2,10 +2,16 @@
 
 The project's addopts carry --benchmark-disable, so a plain pytest run executes each benchmark once, untimed (a
 smoke test). Time them with: pytest tests/benchmarks/test_bench_classic.py --benchmark-enable
+
+Each extractor is timed beside its floor (benchmarks/extractor_floor.py: the same rule in bare library calls, which
+is checked here to compute the extractor's selection), the two in one group: pytest-benchmark's table then shows the
+extractor's times relative to the floor's, the ratio the project holds each extractor to (<= 1.3x, docs/performance.md).
+benchmarks/extractor_floor.py measures the same ratio in alternating rounds, which a loaded machine disturbs less.
 """
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import pytest
@@ -14,7 +20,11 @@ from i2pbench.plugins import default_registry
 from i2pbench.protocol import Protocol
 from i2pbench.types import Features
 
-KITTI = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "kitti_odometry"
+ROOT = Path(__file__).resolve().parents[2]
+KITTI = ROOT.parent / "shared" / "data" / "kitti_odometry"
+EXTRACTORS = [("extractor2d", name) for name in ("lsd", "canny", "sobel", "random")] + [
+    ("extractor3d", name) for name in ("depth", "reflectance", "depth+reflectance", "random")
+]
 
 
 @pytest.fixture(scope="module")
@@ -26,20 +36,30 @@ def frame():
     return Protocol().apply(KittiOdometry("all", {"root": str(KITTI)}).load("00/000000"))
 
 
+@pytest.fixture(scope="module")
+def floors(frame):
+    """benchmarks/extractor_floor.py's floors for this frame (one definition for the script and the suite)"""
+    spec = importlib.util.spec_from_file_location("extractor_floor", ROOT / "benchmarks" / "extractor_floor.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module, module.floors(frame)
+
+
 def make(kind: str, name: str):
     return default_registry().component(kind, name)()
 
 
-@pytest.mark.parametrize("name", ["lsd", "canny", "sobel", "random"])
-def test_extractor2d(benchmark, frame, name):
-    kp = benchmark(make("extractor2d", name), frame)
-    assert len(kp) == 3000
-
-
-@pytest.mark.parametrize("name", ["depth", "reflectance", "depth+reflectance", "random"])
-def test_extractor3d(benchmark, frame, name):
-    kp = benchmark(make("extractor3d", name), frame)
-    assert 0 < len(kp) <= 3000
+@pytest.mark.parametrize("side", ["extractor", "floor"])
+@pytest.mark.parametrize("kind, name", EXTRACTORS, ids=[f"{kind}-{name}" for kind, name in EXTRACTORS])
+def test_extractor_beside_its_floor(benchmark, frame, floors, kind, name, side):
+    module, floor_of = floors
+    benchmark.group = f"{kind} {name}: extractor / floor"
+    if side == "floor":
+        module.check_floor(kind, name, floor_of[kind, name], frame, default_registry())  # the same selection
+        benchmark(floor_of[kind, name], frame)
+        return
+    kp = benchmark(make(kind, name), frame)
+    assert (len(kp) == 3000) if kind == "extractor2d" else (0 < len(kp) <= 3000)
 
 
 @pytest.mark.parametrize("name", ["epnp-ransac", "poselib"])

@@ -51,22 +51,27 @@ def rasterise_segments(segments: np.ndarray, size: tuple[int, int]) -> np.ndarra
     return mask
 
 
-def pixels_to_keypoints(rows: np.ndarray, cols: np.ndarray, frame: Frame, conf: dict[str, Any]) -> Keypoints2D:
-    """Cap candidate pixels (raster order) with the seeded rule and pack them as (u, v)."""
-    keep = cap(len(rows), conf["max_keypoints"], conf["seed"], frame)
-    uv = np.stack([cols[keep], rows[keep]], axis=1).astype(np.float32)
-    return Keypoints2D(uv=uv.reshape(-1, 2))
+def mask_points(mask: np.ndarray) -> np.ndarray:
+    """[N x 2] int32 (u, v) = (column, row) of a [H x W] mask's non-zero pixels in raster order (np.nonzero's order);
+    OpenCV's findNonZero reads a uint8 (or bool) mask 3-4x faster than np.nonzero on the 2D array."""
+    mask = np.ascontiguousarray(mask)
+    points = cv2.findNonZero(mask.view(np.uint8) if mask.dtype == bool else mask.astype(np.uint8, copy=False))
+    return np.zeros((0, 2), np.int32) if points is None else points.reshape(-1, 2)
 
 
 def edge_pixels(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(rows, cols) of a [H x W] mask's non-zero pixels in raster order, as np.nonzero gives them; OpenCV's
-    findNonZero reads a uint8 (or bool) mask 3-4x faster than np.nonzero on the 2D array."""
-    mask = np.ascontiguousarray(mask)
-    points = cv2.findNonZero(mask.view(np.uint8) if mask.dtype == bool else mask.astype(np.uint8, copy=False))
-    if points is None:
+    """(rows, cols) of a [H x W] mask's non-zero pixels in raster order, as np.nonzero gives them."""
+    points = mask_points(mask)
+    if points.size == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    points = points.reshape(-1, 2)
     return points[:, 1], points[:, 0]
+
+
+def points_to_keypoints(points: np.ndarray, frame: Frame, conf: dict[str, Any]) -> Keypoints2D:
+    """Cap candidate pixels ([N x 2] (u, v), raster order) with the seeded rule and pack them as float32 (u, v):
+    findNonZero's rows are already (u, v), so the kept ones are one row gather and one cast."""
+    keep = cap(len(points), conf["max_keypoints"], conf["seed"], frame)
+    return Keypoints2D(uv=np.take(points, keep, axis=0).astype(np.float32))
 
 
 class EdgeExtractor2D(Extractor2D):
@@ -78,8 +83,7 @@ class EdgeExtractor2D(Extractor2D):
         raise NotImplementedError
 
     def __call__(self, frame: Frame) -> Keypoints2D:
-        rows, cols = edge_pixels(self.edge_mask(grayscale(frame.image)))
-        return pixels_to_keypoints(rows, cols, frame, self.conf)
+        return points_to_keypoints(mask_points(self.edge_mask(grayscale(frame.image))), frame, self.conf)
 
 
 class LSDExtractor(EdgeExtractor2D):
@@ -132,7 +136,10 @@ class RandomExtractor2D(Extractor2D):
     def __call__(self, frame: Frame) -> Keypoints2D:
         width, height = frame.image_size
         rows, cols = np.divmod(cap(width * height, self.conf["max_keypoints"], self.conf["seed"], frame), width)
-        return Keypoints2D(uv=np.stack([cols, rows], axis=1).astype(np.float32).reshape(-1, 2))
+        uv = np.empty((rows.size, 2), dtype=np.float32)  # filled column by column: no [M x 2] int64 stack to cast
+        uv[:, 0] = cols
+        uv[:, 1] = rows
+        return Keypoints2D(uv=uv)
 
 
 class GridExtractor2D(Extractor2D):

@@ -37,7 +37,7 @@ def scan_order(ring: np.ndarray) -> np.ndarray | None:
     """Point indices grouped by ring, keeping the scan order within each ring (a stable sort); None when the points
     are grouped already (every KITTI and nuScenes scan), so no copy is made."""
     ring = np.asarray(ring)
-    if ring.size < 2 or np.all(ring[1:] >= ring[:-1]):
+    if ring.size < 2 or not (ring[1:] < ring[:-1]).any():
         return None
     return np.argsort(ring, kind="stable").astype(np.int64)
 
@@ -77,6 +77,14 @@ def normalised_reflectance(points: np.ndarray) -> np.ndarray:
     refl = points[:, 3].astype(np.float64)
     top = float(refl.max()) if refl.size else 0.0
     return refl / top if top > 1.0 else np.clip(refl, 0.0, 1.0)
+
+
+def all_finite(values: np.ndarray) -> bool:
+    """Whether every value is finite. Their float sum is finite only then (a NaN or an infinity stays non-finite
+    through any sum), and einsum's sum reads a float32 array ~1.3x faster than isfinite(values).all(); a sum that
+    overflows on finite values is settled by the plain test."""
+    flat = values.reshape(-1)
+    return bool(np.isfinite(np.einsum("i->", flat))) or bool(np.isfinite(flat).all())
 
 
 _ROW_OF_BYTES = {1: np.uint8, 2: np.uint16, 4: np.uint32, 8: np.uint64}
@@ -137,6 +145,15 @@ def reflectance_edges(frame: Frame, eps_reflectance: float) -> np.ndarray:
     return lines.marked()
 
 
+def keypoints(index: np.ndarray, rows: np.ndarray) -> Keypoints3D:
+    """Keypoints3D.from_index(frame, index) given rows = frame.points[index]: xyz is filled one column at a time,
+    3x faster than copying the [M x 3] block out of the [M x 4] rows in one go; the same arrays."""
+    xyz = np.empty((rows.shape[0], 3), dtype=rows.dtype)
+    for column in range(3):
+        xyz[:, column] = rows[:, column]
+    return Keypoints3D(index=index.astype(np.int64, copy=False), xyz=xyz, reflectance=np.ascontiguousarray(rows[:, 3]))
+
+
 class EdgeExtractor3D(Extractor3D):
     """An extractor defined by a set of candidate point indices, capped with the seeded rule."""
 
@@ -146,15 +163,21 @@ class EdgeExtractor3D(Extractor3D):
         """Candidate point indices, distinct and sorted."""
         raise NotImplementedError
 
-    def finite_candidates(self, frame: Frame) -> np.ndarray:
-        """The candidates whose point is finite: a corrupt return is never a keypoint."""
+    def finite_candidates(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+        """The candidates whose point is finite (a corrupt return is never a keypoint), and their rows of points."""
         index = self.candidates(frame)
-        return index[finite_rows(np.take(frame.points, index, axis=0))]  # take: ~10x a fancy index on [N x 4]
+        rows = np.take(frame.points, index, axis=0)  # take: ~10x a fancy index on [N x 4]
+        if np.isfinite(rows).all():  # the usual case: no row mask to build and apply
+            return index, rows
+        finite = finite_rows(rows)
+        return index[finite], rows[finite]
 
     def __call__(self, frame: Frame) -> Keypoints3D:
-        index = self.finite_candidates(frame)
+        index, rows = self.finite_candidates(frame)
         keep = cap(index.size, self.conf["max_keypoints"], self.conf["seed"], frame)
-        return Keypoints3D.from_index(frame, index[keep])
+        if keep.size < index.size:
+            index, rows = index[keep], np.take(rows, keep, axis=0)
+        return keypoints(index, rows)
 
 
 class DepthExtractor(EdgeExtractor3D):
@@ -202,6 +225,7 @@ class RandomExtractor3D(EdgeExtractor3D):
         points = frame.points
         # a whole finite scan (the usual case): the candidates are all points and the cap's positions are their
         # indices, with no index list built
-        if np.isfinite(points).all():
-            return Keypoints3D.from_index(frame, cap(len(points), self.conf["max_keypoints"], self.conf["seed"], frame))
+        if all_finite(points):
+            index = cap(len(points), self.conf["max_keypoints"], self.conf["seed"], frame)
+            return keypoints(index, np.take(points, index, axis=0))
         return super().__call__(frame)
