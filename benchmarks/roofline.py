@@ -12,7 +12,9 @@ farthest point sampling loop) shows as a lower ratio, not as FLOPs. See docs/per
     .venv/bin/python benchmarks/roofline.py --preset edgeregnet-full --device cuda --amp off,bf16   # the GPU check
 
 `--amp off,bf16` measures both precisions in one process, each against the machine's rates in that precision, and
-ends with the per-frame latency of each: on a GPU that is the prepared check of the paper-size frame.
+ends with the per-frame latency of each: on a GPU that is the prepared check of the paper-size frame. `--rounds R`
+repeats the whole measurement (rates and stages) R times and ends with the min and median over the rounds of each
+stage's achieved/matmul ratio, so one slow minute on a shared machine shows as a spread, not as the result.
 """
 
 from __future__ import annotations
@@ -157,11 +159,16 @@ def print_rates(before: dict[str, float], after: dict[str, float]) -> dict[str, 
     return rates
 
 
+def with_frame(stages: list[Stage]) -> list[Stage]:
+    """the stages and their sum, the learned part of a frame."""
+    flops = {kind: sum(s.flops.get(kind, 0) for s in stages) for kind in KINDS}
+    return [*stages, Stage("per frame", flops, sum(s.seconds for s in stages))]
+
+
 def print_stages(stages: list[Stage], rates: dict[str, float]) -> None:
     head = f"{'stage':10s} {'GFLOP':>8s} {'conv/attn/mm %':>15s} {'ms':>9s} {'GFLOP/s':>8s} {'x matmul':>9s}"
     print(f"\n{head} {'x roofline':>10s}")
-    flops = {kind: sum(s.flops.get(kind, 0) for s in stages) for kind in KINDS}
-    for stage in [*stages, Stage("per frame", flops, sum(s.seconds for s in stages))]:
+    for stage in with_frame(stages):
         gflops, rate = stage.total / 1e9, stage.total / stage.seconds / 1e9
         mix = "/".join(f"{100 * stage.flops.get(k, 0) / max(stage.total, 1):.0f}" for k in KINDS)
         roof = stage.roofline_seconds(rates) / stage.seconds
@@ -178,14 +185,36 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
     parser.add_argument("--amp", type=amp_modes, default=["off"], help="off, bf16 or off,bf16 (both, in turn)")
+    parser.add_argument("--rounds", type=int, default=1, help="whole measurements; >1 ends with their min and median")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, {args.device}, {args.threads} threads, median of {args.repeat}")
     pipeline = build_pipeline(args.preset, args.device)
     n_keypoints = pipeline.stages["extractor2d"].conf["max_keypoints"]
     print(f"preset {args.preset}: {pipeline.combination.label}, {n_keypoints} + {n_keypoints} keypoints")
-    frame_seconds = {amp: run_precision(pipeline, n_keypoints, args, amp) for amp in args.amp}
+    rounds: dict[str, list[tuple[list[Stage], dict[str, float]]]] = {amp: [] for amp in args.amp}
+    for r in range(args.rounds):
+        for amp in args.amp:
+            print(f"\n=== round {r + 1} of {args.rounds}, amp {amp}")
+            rounds[amp].append(run_precision(pipeline, n_keypoints, args, amp))
+    frame_seconds = {
+        amp: statistics.median(sum(s.seconds for s in st) for st, _ in runs) for amp, runs in rounds.items()
+    }
+    if args.rounds > 1:
+        for amp, runs in rounds.items():
+            print_spread(amp, runs)
     print("\nper frame (learned stages): " + ", ".join(f"{amp} {s:.3f} s" for amp, s in frame_seconds.items()))
+
+
+def print_spread(amp: str, runs: list[tuple[list[Stage], dict[str, float]]]) -> None:
+    """each stage's achieved/matmul ratio over the rounds: min and median (and the frame's median seconds)."""
+    print(f"\n=== amp {amp}: achieved / matmul over {len(runs)} rounds")
+    print(f"{'stage':10s} {'min':>6s} {'median':>7s} {'max':>6s} {'median ms':>10s}")
+    tables = [with_frame(stages) for stages, _ in runs]
+    for i, name in enumerate(stage.kind for stage in tables[0]):
+        ratios = [t[i].total / t[i].seconds / 1e9 / rates["matmul"] for t, (_, rates) in zip(tables, runs, strict=True)]
+        ms = statistics.median(1e3 * t[i].seconds for t in tables)
+        print(f"{name:10s} {min(ratios):6.2f} {statistics.median(ratios):7.2f} {max(ratios):6.2f} {ms:10.1f}")
 
 
 def amp_modes(value: str) -> list[str]:
@@ -195,16 +224,18 @@ def amp_modes(value: str) -> list[str]:
     return modes
 
 
-def run_precision(pipeline: Pipeline, n_keypoints: int, args: argparse.Namespace, amp: str) -> float:
-    """One precision's table (rates before and after the stages, in that precision); the frame's seconds."""
+def run_precision(
+    pipeline: Pipeline, n_keypoints: int, args: argparse.Namespace, amp: str
+) -> tuple[list[Stage], dict[str, float]]:
+    """One precision's table (rates before and after the stages, in that precision); the stages and the rates."""
     dtype = torch.bfloat16 if amp == "bf16" else torch.float32
-    print(f"\n=== amp {amp}")
     before = machine_rates(args.device, args.repeat, dtype)
     stages, uncounted = measure_stages(pipeline, n_keypoints, args.repeat, args.device, amp)
-    print_stages(stages, print_rates(before, machine_rates(args.device, args.repeat, dtype)))
+    rates = print_rates(before, machine_rates(args.device, args.repeat, dtype))
+    print_stages(stages, rates)
     total = sum(s.total for s in stages)
     print(f"\nFlopCounterMode without the CPU attention formula: {uncounted / 1e9:.1f} of {total / 1e9:.1f} GFLOP")
-    return sum(s.seconds for s in stages)
+    return stages, rates
 
 
 if __name__ == "__main__":
