@@ -1,39 +1,43 @@
 """What plugin authors import: `from i2pbench.api import hookimpl, Extractor2D, ..., Method`.
 
-`LearnedComponent` is imported on first use (it subclasses torch.nn.Module), so a plugin of classic stages imports
-this module without importing torch.
+Each name is imported from its module on first use: a plugin module that takes only `hookimpl` (its components
+registered by path) then imports none of the stage contracts, so `i2pbench plugins` stays light, and
+`LearnedComponent` (it subclasses torch.nn.Module) is imported by the stages that use it, never by a plugin of
+classic stages.
 """
 
+from __future__ import annotations
+
+import importlib
 from typing import TYPE_CHECKING, Any
 
-from .components import (
-    FEATURES2D,
-    FEATURES3D,
-    FRUSTUM_SCORES,
-    GROUND_TRUTH,
-    IMAGE,
-    KEYPOINTS2D,
-    KEYPOINTS3D,
-    MATCHES,
-    POINTS,
-    Component,
-    Encoder2D,
-    Encoder3D,
-    Exchanger,
-    Extractor2D,
-    Extractor3D,
-    Matcher,
-    PoseSolver,
-)
-from .corruptions import Corruption
-from .data.base import Dataset
-from .errors import DataError, StageError
-from .hookspecs import hookimpl
-from .methods import Method, MethodPreset, Row, Size
-from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
-
 if TYPE_CHECKING:
+    from .components import (
+        FEATURES2D,
+        FEATURES3D,
+        FRUSTUM_SCORES,
+        GROUND_TRUTH,
+        IMAGE,
+        KEYPOINTS2D,
+        KEYPOINTS3D,
+        MATCHES,
+        POINTS,
+        Component,
+        Encoder2D,
+        Encoder3D,
+        Exchanger,
+        Extractor2D,
+        Extractor3D,
+        Matcher,
+        PoseSolver,
+    )
+    from .corruptions import Corruption
+    from .data.base import Dataset
+    from .errors import DataError, StageError
+    from .hookspecs import hookimpl
     from .learned import LearnedComponent
+    from .methods import Method, MethodPreset, Row, Size
+    from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
 
 __all__ = [
     "FEATURES2D",
@@ -73,9 +77,41 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    if name == "LearnedComponent":
-        from .learned import LearnedComponent
+# where each name is defined (in i2pbench)
+_MODULES = {
+    "components": (
+        "FEATURES2D",
+        "FEATURES3D",
+        "FRUSTUM_SCORES",
+        "GROUND_TRUTH",
+        "IMAGE",
+        "KEYPOINTS2D",
+        "KEYPOINTS3D",
+        "MATCHES",
+        "POINTS",
+        "Component",
+        "Encoder2D",
+        "Encoder3D",
+        "Exchanger",
+        "Extractor2D",
+        "Extractor3D",
+        "Matcher",
+        "PoseSolver",
+    ),
+    "corruptions": ("Corruption",),
+    "data.base": ("Dataset",),
+    "errors": ("DataError", "StageError"),
+    "hookspecs": ("hookimpl",),
+    "learned": ("LearnedComponent",),
+    "methods": ("Method", "MethodPreset", "Row", "Size"),
+    "types": ("Features", "Frame", "Keypoints2D", "Keypoints3D", "Matches", "PoseEstimate", "SensorFrame"),
+}
+_HOME = {name: module for module, names in _MODULES.items() for name in names}
 
-        return LearnedComponent
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOME:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"i2pbench.{_HOME[name]}"), name)
+    globals()[name] = value  # found directly from now on
+    return value

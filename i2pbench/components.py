@@ -11,10 +11,11 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 from .errors import PluginError
-from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
 
 if TYPE_CHECKING:  # torch is imported where a learned stage is built, not by every command that names stages
     import torch
+
+    from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
 
 # The values that can flow between stages; a frame always provides "image" and "points".
 IMAGE, POINTS, GROUND_TRUTH = "image", "points", "ground_truth"

@@ -26,15 +26,15 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
-import numpy as np
-
 from .errors import I2PBenchError, PluginError
-from .types import SensorFrame
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # numpy and the frame are imported where frames are checked: listing plugins needs neither
+    import numpy as np
+
     from .data.base import Dataset
     from .plugins import Registry
     from .protocol import Protocol
+    from .types import SensorFrame
 
 KINDS = ("image", "lidar", "geometry")
 CHANGES = {"image": {"image"}, "lidar": {"points", "ring"}, "geometry": {"K"}}  # what each kind may change
@@ -93,6 +93,8 @@ class Corruption:
         into T_gt; None at severity 0 or for a corruption that does not `moves_cloud`."""
         if severity == 0 or not self.moves_cloud:
             return None
+        import numpy as np
+
         motion = self._call(self.motion, sensor, severity, rng)
         check_motion(sensor, motion, self)
         return np.asarray(motion, dtype=np.float64)
@@ -165,6 +167,10 @@ def check_class(cls: type[Corruption], plugin: str) -> None:
 
 def check_corrupted(before: SensorFrame, after: object, corruption: Corruption) -> None:
     """The corrupted frame is the same frame, changed only where its kind allows, with valid arrays."""
+    import numpy as np
+
+    from .types import SensorFrame
+
     where = f"corruption {corruption.name!r} on {before.dataset} frame {before.frame_id}"
     if not isinstance(after, SensorFrame):
         raise CorruptionError(f"{where} returned {type(after).__name__}, expected SensorFrame")
@@ -180,6 +186,8 @@ def check_corrupted(before: SensorFrame, after: object, corruption: Corruption) 
 
 
 def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    import numpy as np
+
     if a is None or b is None:
         return a is b
     return a is b or (a.shape == b.shape and a.dtype == b.dtype and np.array_equal(a, b))
@@ -187,6 +195,8 @@ def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
 
 def check_motion(sensor: SensorFrame, motion: object, corruption: Corruption) -> None:
     """A corruption's motion is a finite rigid transform: the protocol composes it into the ground truth."""
+    import numpy as np
+
     where = f"corruption {corruption.name!r} on {sensor.dataset} frame {sensor.frame_id}"
     M = np.asarray(motion, dtype=np.float64) if isinstance(motion, np.ndarray) else None
     if M is None or M.shape != (4, 4) or not np.isfinite(M).all():
@@ -199,6 +209,8 @@ def check_motion(sensor: SensorFrame, motion: object, corruption: Corruption) ->
 
 
 def _invalid(before: SensorFrame, after: SensorFrame) -> str:
+    import numpy as np
+
     image, points, ring, K = after.image, after.points, after.ring, after.K
     if image.shape != before.image.shape or image.dtype != np.uint8:
         return f"image must stay {before.image.shape} uint8, got {image.shape} {image.dtype}"

@@ -22,23 +22,24 @@ attributed to its plugin, and is kept whole for `i2pbench plugins`.
 
 from __future__ import annotations
 
-import difflib
 import importlib
-import importlib.metadata
 import os
 import sys
 from dataclasses import dataclass, field, fields, replace
 from functools import lru_cache
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pluggy
 
 from . import hookspecs
 from .components import STAGE_BASES, Component
-from .corruptions import Corruption, check_class
-from .data.base import Dataset
+from .entry_points import EntryPoint, installed
 from .errors import PluginError
 from .methods import Method
+
+if TYPE_CHECKING:  # imported to check a class: listing what was registered by path needs neither
+    from .corruptions import Corruption
+    from .data.base import Dataset
 
 ENTRY_POINT_GROUP = "i2pbench"
 BUILTIN_DISTRIBUTION = "i2pbench"  # the reference plugins ship in i2pbench's own distribution
@@ -186,6 +187,8 @@ def _resolved(table: dict[str, Entry], name: str) -> Any:
 def _lookup(table: dict[str, Any], name: str, what: str) -> str:
     if name in table:
         return name
+    import difflib  # only to suggest a name: listing plugins never needs it
+
     close = difflib.get_close_matches(name, list(table), n=1, cutoff=0.5)
     hint = f"; did you mean {close[0]!r}?" if close else ""
     raise PluginError(f"unknown {what} {name!r}{hint} (known: {', '.join(sorted(table)) or 'none'})")
@@ -198,10 +201,10 @@ def _env_names(var: str) -> set[str] | None:
     return {part.strip() for part in value.split(",") if part.strip()}
 
 
-def _selected_entry_points() -> list[importlib.metadata.EntryPoint]:
+def _selected_entry_points() -> list[EntryPoint]:
     only = _env_names("I2PBENCH_LOAD_PLUGINS")
     blocked = _env_names("I2PBENCH_BLOCK_PLUGINS") or set()
-    eps = sorted(importlib.metadata.entry_points(group=ENTRY_POINT_GROUP), key=lambda ep: ep.name)
+    eps = sorted(installed(ENTRY_POINT_GROUP), key=lambda ep: ep.name)
     return [ep for ep in eps if ep.name not in blocked and (only is None or ep.name in only)]
 
 
@@ -219,8 +222,6 @@ def make_plugin_manager(
     pm.add_hookspecs(hookspecs)
     infos = []
     for ep in _selected_entry_points():
-        dist = ep.dist
-        version, distribution = (dist.version, dist.metadata["Name"]) if dist else ("?", "?")
         try:
             plugin = ep.load()
             pm.register(plugin, name=ep.name)
@@ -229,9 +230,9 @@ def make_plugin_manager(
             if strict:
                 raise PluginError(f"plugin {ep.name!r} {error}") from exc
             _warn(ep.name, error)
-            infos.append(PluginInfo(ep.name, version, distribution, (), error))
+            infos.append(PluginInfo(ep.name, ep.version, ep.distribution, (), error))
             continue
-        infos.append(PluginInfo(ep.name, version, distribution, _hooks_of(plugin)))
+        infos.append(PluginInfo(ep.name, ep.version, ep.distribution, _hooks_of(plugin)))
     for plugin in extra_plugins:
         name = getattr(plugin, "__name__", type(plugin).__name__)
         pm.register(plugin, name=name)
@@ -257,6 +258,9 @@ def _collect(pm: pluggy.PluginManager, plugin: str, hook_name: str) -> list[tupl
 
 
 def _check_class(cls: Any, kind: str, plugin: str) -> None:
+    from .corruptions import Corruption, check_class
+    from .data.base import Dataset
+
     base = {"dataset": Dataset, "corruption": Corruption}.get(kind) or STAGE_BASES[kind]
     if not (isinstance(cls, type) and issubclass(cls, base)):
         raise PluginError(f"plugin {plugin!r} registered {cls!r} as a {kind}, but it does not subclass {base.__name__}")

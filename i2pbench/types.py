@@ -9,9 +9,8 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-import numpy as np
-
-if TYPE_CHECKING:  # descriptors are tensors, but a run of the classic stages never needs torch itself
+if TYPE_CHECKING:  # annotations only: numpy is imported where an array is made, torch by the learned stages
+    import numpy as np
     import torch
 
 
@@ -98,6 +97,8 @@ class Keypoints3D:
 
     @classmethod
     def from_index(cls, frame: Frame, index: np.ndarray) -> Keypoints3D:
+        import numpy as np
+
         index = np.asarray(index, dtype=np.int64)
         pts = np.take(frame.points, index, axis=0)  # the same rows as points[index], ~10x faster on [N x 4]
         return cls(index=index, xyz=np.ascontiguousarray(pts[:, :3]), reflectance=np.ascontiguousarray(pts[:, 3]))
@@ -130,7 +131,16 @@ class Matches:
 
     @classmethod
     def empty(cls) -> Matches:
+        import numpy as np
+
         return cls(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32))
+
+
+def _no_rows() -> np.ndarray:
+    """An empty [0] int64 index array (a solve without inliers)."""
+    import numpy as np
+
+    return np.zeros(0, np.int64)
 
 
 @dataclass(frozen=True)
@@ -138,7 +148,7 @@ class PoseEstimate:
     """A solver's answer. A failed solve carries `T=None` and a message, never an exception."""
 
     T: np.ndarray | None  # [4 x 4] float64 camera <- moved LiDAR
-    inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # [I] int64 rows of Matches
+    inliers: np.ndarray = field(default_factory=_no_rows)  # [I] int64 rows of Matches
     message: str = ""
 
     @property

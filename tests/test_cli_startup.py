@@ -10,7 +10,7 @@ import pytest
 
 from i2pbench.cli import COMMANDS, build_parser, invoked
 
-HEAVY = {"torch", "scipy", "pandas"}
+HEAVY = {"numpy", "torch", "scipy", "pandas"}
 # the console script's code, printing what still runs when `main` returns (threads the exit would wait for, child
 # processes) and the modules loaded when the process ends
 PROBE = """
@@ -37,18 +37,37 @@ def _line(stderr: str, tag: str) -> list[str]:
     return next(line for line in stderr.splitlines() if line.split()[:1] == [tag]).split()[1:]
 
 
-def test_help_imports_no_command_module_and_none_of_torch_scipy_pandas():
+def test_help_imports_no_command_module_and_none_of_numpy_torch_scipy_pandas():
     stdout, modules = _run("--help")
     assert all(name in stdout for name in COMMANDS)
     assert modules & HEAVY == set()
     assert not any(m.startswith("i2pbench.commands.") for m in modules)
 
 
-def test_plugins_lists_every_component_without_importing_them_or_torch_scipy_pandas():
+def test_plugins_lists_every_component_without_importing_them_or_numpy_torch_scipy_pandas():
     stdout, modules = _run("plugins")
     assert "lsd" in stdout and "attention" in stdout and "kitti" in stdout
     assert modules & HEAVY == set()
     assert not {"i2pbench_classic.extract2d", "i2pbench_edgeregnet.attention", "i2pbench.data.kitti"} & modules
+    assert "i2pbench.types" not in modules  # the plugins import `hookimpl` and methods from i2pbench.api, nothing more
+
+
+def test_a_second_start_finds_the_plugins_without_importlib_metadata(tmp_path):
+    """The entry points found by the first start are kept (i2pbench.entry_points): the next skips the ~30 ms of
+    importing importlib.metadata and reading every distribution, and lists the same."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("I2PBENCH_")} | {"HOME": str(tmp_path)}
+    first, cold = _run("plugins", env=env)
+    second, warm = _run("plugins", env=env)
+    assert "importlib.metadata" in cold and "importlib.metadata" not in warm
+    assert second == first
+
+
+def test_every_name_of_the_api_imports():
+    """i2pbench.api imports each name on first use from the module its table gives: none is left out or wrong."""
+    import i2pbench.api as api
+
+    assert set(api.__all__) == set(api._HOME)
+    assert all(hasattr(api, name) for name in api.__all__)
 
 
 def test_the_top_level_help_is_the_same_whether_or_not_the_commands_are_built():

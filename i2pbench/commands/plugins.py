@@ -7,7 +7,6 @@ from the registration: nothing is imported), and each method with its stages, si
 from __future__ import annotations
 
 import argparse
-import json
 from typing import Any
 
 NAMED = ("preset", "weights", "method")  # listed by name: they have no module of their own
@@ -24,6 +23,8 @@ def run(args: argparse.Namespace) -> int:
     registry = default_registry()
     rows = [_row(registry, info) for info in registry.plugins]
     if args.json:
+        import json
+
         print(json.dumps(rows, indent=2))
         return 0
     for row in rows:

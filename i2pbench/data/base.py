@@ -6,11 +6,13 @@ import functools
 import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from ..components import merge_conf
 from ..errors import DataError, I2PBenchError
-from ..types import SensorFrame
+
+if TYPE_CHECKING:
+    from ..types import SensorFrame
 
 
 class Dataset:
