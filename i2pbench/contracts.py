@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from typing import TYPE_CHECKING, Any
 
@@ -102,6 +103,11 @@ def check_matches(matches: object, n2d: int, n3d: int, component: str, frustum_r
     )
     if matches.frustum is not None:
         check_frustum(matches.frustum, n3d, component)
+    _require(
+        matches.radius_px is None or (math.isfinite(matches.radius_px) and matches.radius_px > 0),
+        component,
+        f"radius_px must be None or a positive number of pixels; got {matches.radius_px!r}",
+    )
     return matches
 
 

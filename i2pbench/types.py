@@ -119,12 +119,17 @@ class Matches:
     `frustum` is set by a matcher that declares FRUSTUM_SCORES (i2pbench.components) in `provides`: for each 3D
     keypoint, its probability of lying in the camera frustum (DeepI2P's classification), which an inverse-projection
     solver fits a pose to. None: the matcher gives none.
+
+    `radius_px` is set by a matcher whose pairs are coarse by design: DeepI2P pairs a point with the centre of the
+    grid cell it predicts, so its pair is true when the point projects within the cell's half diagonal of that
+    centre, not within eps_c. None: a pair is true within the frame's eps_c (`Frame.match_radius_px`).
     """
 
     index2d: np.ndarray  # [K] int64 rows of Keypoints2D.uv
     index3d: np.ndarray  # [K] int64 rows of Keypoints3D
     score: np.ndarray  # [K] float32, higher is more confident
     frustum: np.ndarray | None = None  # [M3] float32 in [0, 1], one per 3D keypoint (not per match)
+    radius_px: float | None = None  # px within which this matcher's pairs count as true (None: the frame's eps_c)
 
     def __len__(self) -> int:
         return int(self.index2d.shape[0])

@@ -46,11 +46,13 @@ from i2pbench.api import (
 from i2pbench.batching import BatchForward, prepare_stage
 from i2pbench.calling import StageInputs, call_stage
 from i2pbench.contracts import ContractError, check_matches
+from i2pbench.correspondence import true_match_mask
 from i2pbench.errors import PluginError
 from i2pbench.metrics import pose_errors
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
+from i2pbench.runs.frames import true_matches
 from i2pbench.runs.upstream import UPSTREAM_KINDS, StoredUpstream
 from i2pbench.testing import check_component, check_declaration, registered_components
 from i2pbench.trace import Upstream
@@ -170,7 +172,8 @@ class TruthFrustum(Matcher):
     def __call__(self, frame, kp2d, kp3d, features):
         xyz, size = kp3d.xyz.astype(np.float64), frame.image_size
         inside = frustum_labels(xyz, frame.K_true, frame.T_gt, size)
-        matches = cell_matches(grid_labels(xyz, frame.K_true, frame.T_gt, size, self.conf["cell_px"]), inside)
+        cells = grid_labels(xyz, frame.K_true, frame.T_gt, size, self.conf["cell_px"])
+        matches = cell_matches(cells, inside, self.conf["cell_px"])
         return dataclasses.replace(matches, frustum=inside.astype(np.float32))
 
 
@@ -228,6 +231,40 @@ def toy_frame(seed: int = 0, n: int = 2000) -> Frame:
     image = np.zeros((TOY_SIZE[1], TOY_SIZE[0], 3), np.uint8)
     sensor = SensorFrame("toy", f"frustum-{seed}", image, points, np.zeros(n, np.int16), TOY_K, TOY_T_CAM_LIDAR)
     return Protocol(seed=seed).apply(sensor)
+
+
+def test_a_pair_with_its_true_cell_is_a_true_match_judged_by_the_cell_not_by_eps_c(tmp_path):
+    """Perfect grid classification: every point inside the image paired with its own cell's centre. Each projects
+    inside its cell, so within the half diagonal (64 / sqrt 2 = 45.25 px) of the centre the pairs carry, and every
+    pair counts as true; judged by eps_c (3 px) only those within 3 px of a centre would (about pi 3^2 / 64^2 = 0.7%
+    of them), and a trained grid + PnP's every success would read as chance. The radius survives the stored upstream,
+    and a file written without it reads back as eps_c."""
+    frame = toy_frame()
+    stages = {
+        "extractor2d": CellCentresExtractor(),
+        "extractor3d": RandomExtractor3D({"max_keypoints": None}),
+        "matcher": TruthFrustum(),
+        "solver": FrustumSolver(),
+    }
+    outcome = Pipeline(Combination({k: s.name for k, s in stages.items()}), stages, timeout_s=None).run(frame)
+    assert outcome.matches.radius_px == pytest.approx(45.2548, abs=1e-4)
+    pairs = len(outcome.matches)
+    assert pairs > 100 and true_matches(frame, outcome) == pairs
+    by_eps_c = true_match_mask(frame, outcome.matched_uv, outcome.matched_xyz).sum()
+    assert by_eps_c < 0.05 * pairs
+
+    arrays = StoredUpstream.of(frame, outcome).encode()
+    assert StoredUpstream.decode(arrays).upstream.matches.radius_px == outcome.matches.radius_px
+    del arrays["matches_radius_px"]
+    assert StoredUpstream.decode(arrays).upstream.matches.radius_px is None
+
+
+@pytest.mark.parametrize("radius", [0.0, -3.0, math.nan, math.inf])
+def test_a_radius_that_is_no_positive_number_of_pixels_is_refused(radius):
+    matches = Matches(np.array([0]), np.array([1]), np.ones(1, np.float32), radius_px=radius)
+    with pytest.raises(ContractError, match="radius_px must be None or a positive number of pixels"):
+        check_matches(matches, 2, 3, "matcher 'x'")
+    check_matches(dataclasses.replace(matches, radius_px=45.25), 2, 3, "matcher 'x'")
 
 
 def test_perfect_frustum_scores_give_the_pose_and_the_stored_upstream_gives_it_again(tmp_path):

@@ -103,7 +103,7 @@ def test_epnp_recovers_the_pose_from_cell_centre_matches_within_the_quantisation
     xyz = (cam - T[:3, 3]) @ T[:3, :3]
     true_uv, _ = project(K, T, xyz)
     kp2d = cell_keypoints(SIZE, CELL)
-    matches = cell_matches(cell_of_pixels(true_uv, SIZE, CELL), np.ones(300))
+    matches = cell_matches(cell_of_pixels(true_uv, SIZE, CELL), np.ones(300), CELL)
     quantisation = kp2d.uv[matches.index2d] - true_uv[matches.index3d]
     assert len(matches) == 300 and np.abs(quantisation).max() <= 16.0
     frame = Frame(

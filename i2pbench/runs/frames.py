@@ -194,7 +194,9 @@ def _record(
 
 
 def true_matches(frame: Frame | None, outcome: FrameOutcome) -> float:
-    """How many of the matcher's pairs are true under T_gt (within eps_c); NaN when the matcher did not run."""
+    """How many of the matcher's pairs are true under T_gt (within eps_c, or the matcher's own `Matches.radius_px`);
+    NaN when the matcher did not run."""
     if frame is None or frame.T_gt is None or outcome.matched_uv is None or outcome.matched_xyz is None:
         return float("nan")
-    return float(true_match_mask(frame, outcome.matched_uv, outcome.matched_xyz).sum())
+    radius = outcome.matches.radius_px if outcome.matches is not None else None
+    return float(true_match_mask(frame, outcome.matched_uv, outcome.matched_xyz, radius).sum())

@@ -6,7 +6,8 @@ It is stored as arrays (`.npz`, uncompressed): float32 coordinates and scores, i
 dtypes a stage returned when narrowing them would change a value, so a re-run solver sees exactly what the first one
 saw. `decode` checks every shape and index, so a damaged or foreign file is refused rather than solved. The matches'
 frustum scores (`Matches.frustum`) are stored when the matcher gave them and absent otherwise, so files without them
-(every matcher but a frustum classifier's, and every file written before they existed) read back as None.
+(every matcher but a frustum classifier's, and every file written before they existed) read back as None; so does
+a matcher's own true-match radius (`Matches.radius_px`).
 """
 
 from __future__ import annotations
@@ -94,6 +95,8 @@ class StoredUpstream:
                 arrays[name] = np.asarray(T, np.float64)
         if up.matches.frustum is not None:
             arrays["frustum"] = _narrow(up.matches.frustum)
+        if up.matches.radius_px is not None:
+            arrays["matches_radius_px"] = np.float64(up.matches.radius_px)
         return arrays
 
     @classmethod
@@ -103,7 +106,13 @@ class StoredUpstream:
         upstream = Upstream(
             Keypoints2D(a["uv"]),
             Keypoints3D(a["kp3d_index"].astype(np.int64), a["xyz"], a["reflectance"]),
-            Matches(a["index2d"].astype(np.int64), a["index3d"].astype(np.int64), a["score"], a.get("frustum")),
+            Matches(
+                a["index2d"].astype(np.int64),
+                a["index3d"].astype(np.int64),
+                a["score"],
+                a.get("frustum"),
+                float(a["matches_radius_px"]) if "matches_radius_px" in a else None,
+            ),
         )
         width, height = (int(v) for v in a["image_size"])
         return cls(
@@ -139,7 +148,7 @@ def _checked(a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     m2, m3, k = len(a["uv"]), len(a["kp3d_index"]), len(a["index2d"])
     shapes = {"uv": (m2, 2), "xyz": (m3, 3), "reflectance": (m3,), "index3d": (k,), "score": (k,), "K": (3, 3)}
     shapes |= {"timings": (len(UPSTREAM_KINDS),), "image_size": (2,), "frame": (2,), "T_gt": (4, 4), "T_init": (4, 4)}
-    shapes |= {"K_gt": (3, 3), "frustum": (m3,)}
+    shapes |= {"K_gt": (3, 3), "frustum": (m3,), "matches_radius_px": ()}
     wrong = [
         f"{name} is {a[name].shape}, not {shape}"
         for name, shape in shapes.items()

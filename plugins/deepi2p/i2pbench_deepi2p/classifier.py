@@ -46,6 +46,7 @@ from i2pbench.api import (
     StageError,
 )
 
+from .grid_matches import cell_radius
 from .labels import cell_centres, cell_of_pixels, frustum_labels, grid_labels
 from .positions import feature_width, fourier_features, normalised_pixels
 
@@ -150,6 +151,7 @@ class DeepI2PClassifier(LearnedComponent, Matcher):
             inside.cpu().numpy().astype(np.int64),
             (frustum[inside] * best.values).cpu().numpy().astype(np.float32),
             frustum=scores,
+            radius_px=cell_radius(self.conf["cell_px"]),  # a pair is a cell: true anywhere in it
         )
 
     def prepare(
