@@ -49,6 +49,26 @@ def test_mutual_maxima_and_threshold():
     assert (i2d.tolist(), i3d.tolist()) == ([0], [1])
 
 
+def two_argmaxes(log_p: torch.Tensor, threshold: float) -> tuple[list[int], list[int]]:
+    """the mutual rule by its definition: torch's argmax (first maximum) along both dimensions."""
+    best3d, best2d, rows = log_p.argmax(1), log_p.argmax(0), torch.arange(len(log_p))
+    value = log_p[rows, best3d]
+    keep = (best2d[best3d] == rows) & (value.exp() > threshold) & torch.isfinite(value)
+    return rows[keep].tolist(), best3d[keep].tolist()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_mutual_matches_are_the_two_argmaxes_even_with_ties_and_masked_rows_and_columns(seed):
+    generator = torch.Generator().manual_seed(seed)
+    log_p = torch.randint(-5, 0, (40, 30), generator=generator).float()  # few values: ties in most rows and columns
+    log_p[:, 3], log_p[7], log_p[11, 5] = float("-inf"), float("-inf"), 0.0
+    i2d, i3d, score = mutual_matches(log_p, 0.0)
+    assert (i2d.tolist(), i3d.tolist()) == two_argmaxes(log_p, 0.0)
+    assert (11, 5) in zip(i2d.tolist(), i3d.tolist(), strict=True) and len(i2d) >= 3
+    torch.testing.assert_close(score, log_p[i2d, i3d].exp())
+    assert (mutual_matches(log_p, 0.2)[0].tolist(), mutual_matches(log_p, 0.2)[1].tolist()) == two_argmaxes(log_p, 0.2)
+
+
 def test_masked_points_never_match():
     log_p = log_assignment(*one(SIM, Z2D, Z3D))[0].masked_fill(torch.tensor([[False, True, True]]), float("-inf"))
     i2d, i3d, _ = mutual_matches(log_p, 0.0)

@@ -40,13 +40,26 @@ def mutual_matches(log_p: torch.Tensor, threshold: float) -> tuple[torch.Tensor,
     if log_p.numel() == 0:
         empty = torch.zeros(0, dtype=torch.long, device=log_p.device)
         return empty, empty, log_p.new_zeros(0)
-    best3d = log_p.argmax(1)  # [M2]
-    best2d = log_p.argmax(0)  # [M3]
     index2d = torch.arange(log_p.shape[0], device=log_p.device)
-    mutual = best2d[best3d] == index2d
-    score = log_p[index2d, best3d].exp()
-    keep = mutual & (score > threshold) & torch.isfinite(log_p[index2d, best3d])
-    return index2d[keep], best3d[keep], score[keep]
+    best3d = row_argmax(log_p)  # [M2]
+    best = log_p[index2d, best3d]
+    column_max = log_p.amax(0)  # a column's argmax is read only where a row's best may be it: amax is vectorised,
+    # argmax over dim 0 is not (24 of the matcher's ~60 ms at the CPU size)
+    rows = index2d[best == column_max[best3d]]
+    cols = best3d[rows]
+    first = (log_p[:, cols] == column_max[cols]).byte().argmax(0)  # argmax's rule: of tied rows, the first
+    mutual = rows[first == rows]
+    score = best[mutual].exp()
+    keep = (score > threshold) & torch.isfinite(best[mutual])
+    return mutual[keep], best3d[mutual][keep], score[keep]
+
+
+def row_argmax(values: torch.Tensor) -> torch.Tensor:
+    """argmax of each row of values [M x N] (the first maximum); numpy's on a float32 CPU tensor, which is vectorised
+    (~50x torch's on this CPU)."""
+    if values.device.type == "cpu" and values.dtype == torch.float32:
+        return torch.from_numpy(values.detach().numpy().argmax(1))
+    return values.argmax(1)
 
 
 def descriptor_dim_mismatch(component: Component, upstream: Mapping[str, Component]) -> str | None:
@@ -96,7 +109,9 @@ class OptimalMatcher(LearnedComponent, Matcher):
         """d2 [B x M2 x D], d3 [B x M3 x D], keypoint masks or None -> log P [B x M2 x M3], matchability logits
         ([B x M2], [B x M3]), fov logits [B x M3]."""
         d2, d3 = d2.float(), d3.float()
-        sim = self.proj2d(d2) @ self.proj3d(d3).transpose(1, 2) / self.conf["descriptor_dim"] ** 0.5
+        sim = (self.proj2d(d2) / self.conf["descriptor_dim"] ** 0.5) @ self.proj3d(d3).transpose(
+            1, 2
+        )  # scaled [M2 x D]
         z2d, z3d = self.matchability2d(d2)[..., 0], self.matchability3d(d3)[..., 0]
         return log_assignment(sim, z2d, z3d, mask2d, mask3d), z2d, z3d, self.fov(d3)[..., 0]
 
