@@ -262,12 +262,13 @@ class PointNet2Encoder(LearnedComponent, Encoder3D):
         """one frame's network inputs: normalised cloud and edge points (+ reflectance) and their grouping.
 
         `cache` (a per-frame dict kept by the caller) holds the grouping across calls: it does not depend on the
-        protocol's transform (see `group`).
+        protocol's transform (see `group`). The inputs are made on the CPU and grouped there by the compiled
+        kernels whatever the device (on a GPU the torch loop of FPS is thousands of tiny kernels), then moved.
         """
         if not np.isfinite(kp3d.xyz).all() or not np.isfinite(kp3d.reflectance).all():
             raise StageError(self.label, "3D keypoints with non-finite coordinates or reflectance (corrupt scan?)")
-        cloud = torch.from_numpy(self.cloud(frame)).to(device)
-        edges = torch.from_numpy(np.c_[kp3d.xyz, kp3d.reflectance].astype(np.float32)).to(device)
+        cloud = torch.from_numpy(self.cloud(frame))
+        edges = torch.from_numpy(np.c_[kp3d.xyz, kp3d.reflectance].astype(np.float32))
         both = normalize_points(torch.cat([cloud[:, :3], edges[:, :3]]), cloud[:, :3], self.conf["canonical_yaw"])
         inputs = {
             "xyz": both[: len(cloud)],
@@ -279,8 +280,8 @@ class PointNet2Encoder(LearnedComponent, Encoder3D):
         if grouping is None or len(grouping["edge"]) != len(edges):
             grouping = {k: v[0] for k, v in group(inputs["xyz"][None], inputs["edge_xyz"][None], self.conf).items()}
             if cache is not None:
-                cache["grouping"] = {k: v.cpu() for k, v in grouping.items()}
-        return {**inputs, **{k: v.to(device) for k, v in grouping.items()}}
+                cache["grouping"] = grouping
+        return {k: v.to(device) for k, v in {**inputs, **grouping}.items()}
 
     def __call__(self, frame: Frame, kp3d: Keypoints3D) -> torch.Tensor:
         device = next(self.parameters()).device
