@@ -43,8 +43,11 @@ class Checkpoint:
     def trained_on(self) -> str:
         """`dataset/split, N steps`, after the stages it was fine-tuned from: `synthetic/train 6500 + kitti/train,
         7000 steps` (steps are cumulative: the last figure is the checkpoint's total); a mixed-in source follows its
-        phase's main dataset with its share: `synthetic/train + kitti/train (0.5), 7000 steps`."""
-        here = f"{data_label(self.meta.get('trained_on', {}))}, {self.meta.get('steps', '?')} steps"
+        phase's main dataset with its share: `synthetic/train + kitti/train (0.5), 7000 steps`. Steps of more than
+        one frame say so (`4250 steps of 2 frames`), so rows trained on batches compare by frames seen."""
+        batch = (self.meta.get("train_config") or {}).get("effective_batch") or 1
+        steps = f"{self.meta.get('steps', '?')} steps" + (f" of {batch} frames" if batch > 1 else "")
+        here = f"{data_label(self.meta.get('trained_on', {}))}, {steps}"
         earlier = [f"{data_label(d)} {d.get('steps', '?')}" for d in self.lineage]
         return " + ".join([*earlier, here])
 

@@ -289,7 +289,7 @@ def test_a_mixed_run_with_dropout_trains_validates_on_the_named_split_and_says_w
     assert done.returncode == 0, done.stderr
     assert "on kitti/train + kitti/val (0.5), effective batch 2" in done.stderr
     checkpoint = load_checkpoint(out)
-    assert checkpoint.trained_on == "kitti/train + kitti/val (0.5), 1 steps"
+    assert checkpoint.trained_on == "kitti/train + kitti/val (0.5), 1 steps of 2 frames"
     assert checkpoint.meta["train_config"]["augment"] == "photometric,lidar-dropout"
     assert checkpoint.meta["validation"]["frames"] == 1
     assert "skipped" not in (tmp_path / "w.pt.log.jsonl").read_text()  # no sample broke

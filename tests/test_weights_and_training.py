@@ -90,6 +90,16 @@ def test_checkpoint_round_trips_with_its_metadata(registry, tmp_path):
     assert fresh.weights_identity == checkpoint.identity and checkpoint.identity.startswith("toy@")
 
 
+def test_trained_on_counts_frames_when_a_step_took_several(registry, tmp_path):
+    batched = {"effective_batch": 2, "batch_size": 1, "accumulate": 2}
+    path = save_checkpoint(tmp_path / "b.pt", _pipeline(registry), steps=4250, train_config=batched,
+                           trained_on={"dataset": "synthetic", "split": "train"})  # fmt: skip
+    assert load_checkpoint(path).trained_on == "synthetic/train, 4250 steps of 2 frames"
+    path = save_checkpoint(tmp_path / "one.pt", _pipeline(registry), steps=8500, train_config={"effective_batch": 1},
+                           trained_on={"dataset": "synthetic", "split": "train"})  # fmt: skip
+    assert load_checkpoint(path).trained_on == "synthetic/train, 8500 steps"  # as every one-frame checkpoint reads
+
+
 def test_a_checkpoint_for_another_config_is_refused_with_a_clear_message(registry, tmp_path):
     path = save_checkpoint(tmp_path / "toy.pt", _pipeline(registry), steps=1)
     with pytest.raises(WeightsError, match=r"encoder2d: the pipeline has 'linear' \{'dim': 8\}.*trained with 'linear'"):
