@@ -233,20 +233,25 @@ def toy_frame(seed: int = 0, n: int = 2000) -> Frame:
     return Protocol(seed=seed).apply(sensor)
 
 
-def test_a_pair_with_its_true_cell_is_a_true_match_judged_by_the_cell_not_by_eps_c(tmp_path):
-    """Perfect grid classification: every point inside the image paired with its own cell's centre. Each projects
-    inside its cell, so within the half diagonal (64 / sqrt 2 = 45.25 px) of the centre the pairs carry, and every
-    pair counts as true; judged by eps_c (3 px) only those within 3 px of a centre would (about pi 3^2 / 64^2 = 0.7%
-    of them), and a trained grid + PnP's every success would read as chance. The radius survives the stored upstream,
-    and a file written without it reads back as eps_c."""
-    frame = toy_frame()
+def perfect_frustum_pipeline() -> Pipeline:
+    """cell centres, every point, perfect frustum scores and cells (TruthFrustum), the planar frustum solver."""
     stages = {
         "extractor2d": CellCentresExtractor(),
         "extractor3d": RandomExtractor3D({"max_keypoints": None}),
         "matcher": TruthFrustum(),
         "solver": FrustumSolver(),
     }
-    outcome = Pipeline(Combination({k: s.name for k, s in stages.items()}), stages, timeout_s=None).run(frame)
+    return Pipeline(Combination({k: s.name for k, s in stages.items()}), stages, timeout_s=None)
+
+
+def test_a_pair_with_its_true_cell_is_a_true_match_judged_by_the_cell_not_by_eps_c():
+    """Perfect grid classification: every point inside the image paired with its own cell's centre. Each projects
+    inside its cell, so within the half diagonal (64 / sqrt 2 = 45.25 px) of the centre the pairs carry, and every
+    pair counts as true; judged by eps_c (3 px) only those within 3 px of a centre would (about pi 3^2 / 64^2 = 0.7%
+    of them), and a trained grid + PnP's every success would read as chance. The radius survives the stored upstream,
+    and a file written without it reads back as eps_c."""
+    frame = toy_frame()
+    outcome = perfect_frustum_pipeline().run(frame)
     assert outcome.matches.radius_px == pytest.approx(45.2548, abs=1e-4)
     pairs = len(outcome.matches)
     assert pairs > 100 and true_matches(frame, outcome) == pairs
@@ -275,13 +280,7 @@ def test_perfect_frustum_scores_give_the_pose_and_the_stored_upstream_gives_it_a
     Measured: 0.03 m, 0.12 deg here (seed 0); seeds 0-5 at most 0.35 m and 1.85 deg. The upstream stored as a run
     stores it (.npz) and read back re-solves to the very same pose."""
     frame = toy_frame()
-    stages = {
-        "extractor2d": CellCentresExtractor(),
-        "extractor3d": RandomExtractor3D({"max_keypoints": None}),
-        "matcher": TruthFrustum(),
-        "solver": FrustumSolver(),
-    }
-    pipeline = Pipeline(Combination({k: s.name for k, s in stages.items()}), stages, timeout_s=None)
+    pipeline = perfect_frustum_pipeline()
     outcome = pipeline.run(frame)
     assert outcome.failure is None and outcome.matches.frustum.sum() > 100
     errors = pose_errors(outcome.estimate.T, frame.T_gt)
