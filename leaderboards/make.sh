@@ -10,10 +10,15 @@ RUNS=${I2PBENCH_MAKE_RUNS:-runs/make-leaderboards}  # per-frame results: a rerun
 ONLY=${1:-}
 PRESETS=baselines,edge-ablation,exchange-ablation  # every row of the paper's tables and the baselines, once each
 
+selected() {  # NAME: whether this invocation makes that board
+    case "$1" in *"$ONLY"*) return 0 ;; esac
+    return 1
+}
+
 board() {  # NAME, then the run options
     local name=$1
     shift
-    case "$name" in *"$ONLY"*) ;; *) return 0 ;; esac
+    selected "$name" || return 0
     echo "== $name" >&2
     .venv/bin/i2pbench run --runs-dir "$RUNS" --threads 1 --quiet --out "leaderboards/$name" "$@" >/dev/null
 }
@@ -27,10 +32,9 @@ board kitti-real-04 --preset "$PRESETS" --dataset kitti --split train --data-roo
 board kitti-real-26 --preset "$PRESETS" --dataset kitti --split val --data-root "$DATA/kitti_real"
 # nuScenes: ten keyframes of scene-0916 (devkit val split), all six cameras
 root="$RUNS/nuscenes-real-dataroot"
-case "nuscenes-real paper-table-1" in *"$ONLY"*)
+if selected nuscenes-real || selected paper-table-1-nuscenes; then  # the devkit dataroot both nuScenes boards read
     [ -d "$root/v1.0-trainval" ] || .venv/bin/i2pbench data nuscenes-dataroot --records "$DATA/nuscenes_real" --out "$root"
-    ;;
-esac
+fi
 NUSCENES=(--dataset nuscenes --split val --data-root "$root"
     --data-conf 'cameras=[CAM_FRONT, CAM_FRONT_LEFT, CAM_FRONT_RIGHT, CAM_BACK, CAM_BACK_LEFT, CAM_BACK_RIGHT]')
 board nuscenes-real --preset baselines "${NUSCENES[@]}"
