@@ -22,7 +22,9 @@ from test_edgeregnet_training import one_thread, tiny_frame  # noqa: F401 (an au
 
 from i2pbench.api import Features, Frame, Keypoints2D, Keypoints3D
 from i2pbench.batching import BatchForward, prepare_stage
+from i2pbench.grid import base_combinations, expand
 from i2pbench.plugins import build_registry
+from i2pbench.runs.runner import prepare
 from i2pbench.testing import check_component, registered_components
 from i2pbench.training_data import collate_samples
 
@@ -409,7 +411,11 @@ def test_the_method_declares_its_sizes_and_presets(monkeypatch):
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "classic,corri2p")
     registry = build_registry(strict=True)
     method = registry.method("corri2p")
-    assert [s.name for s in method.sizes] == ["paper", "cpu-size"] and method.weights == ()
+    assert [s.name for s in method.sizes] == ["paper", "cpu-size"]
+    assert [w.name for w in method.weights] == ["corri2p-cpu-synthetic.pt"]  # the shipped CPU-size checkpoint
+    cpu, paper = (expand(base_combinations(registry, p), {}, None, registry)[0] for p in ("corri2p", "corri2p-paper"))
+    auto = [job.weights for job in prepare(registry, [cpu, paper])]
+    assert auto[0].startswith("corri2p-cpu-synthetic@") and auto[1] == "untrained"  # --weights auto, by size
     owned = {name for name, preset in registry.presets.items() if preset.method == "corri2p"}
     assert owned == {"corri2p", "corri2p-paper", "corri2p-ablation"}
     (row,) = registry.presets["corri2p"].combinations

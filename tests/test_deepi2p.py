@@ -48,11 +48,13 @@ from i2pbench.calling import StageInputs, call_stage
 from i2pbench.contracts import ContractError, check_matches
 from i2pbench.correspondence import true_match_mask
 from i2pbench.errors import PluginError
+from i2pbench.grid import base_combinations, expand
 from i2pbench.metrics import pose_errors
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
 from i2pbench.runs.frames import true_matches
+from i2pbench.runs.runner import prepare
 from i2pbench.runs.upstream import UPSTREAM_KINDS, StoredUpstream
 from i2pbench.testing import check_component, check_declaration, registered_components
 from i2pbench.trace import Upstream
@@ -516,7 +518,11 @@ def test_the_method_declares_its_sizes_and_presets(monkeypatch):
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "classic,deepi2p")
     registry = build_registry(strict=True)
     method = registry.method("deepi2p")
-    assert [s.name for s in method.sizes] == ["paper", "cpu-size"] and method.weights == ()
+    assert [s.name for s in method.sizes] == ["paper", "cpu-size"]
+    assert [w.name for w in method.weights] == ["deepi2p-cpu-synthetic.pt"]  # the shipped CPU-size checkpoint
+    cpu, paper = (expand(base_combinations(registry, p), {}, None, registry)[0] for p in ("deepi2p", "deepi2p-paper"))
+    auto = [job.weights for job in prepare(registry, [cpu, paper])]
+    assert auto[0].startswith("deepi2p-cpu-synthetic@") and auto[1] == "untrained"  # --weights auto, by size
     owned = {name for name, preset in registry.presets.items() if preset.method == "deepi2p"}
     assert owned == {"deepi2p", "deepi2p-paper", "deepi2p-frustum-2d", "deepi2p-frustum-3d"}
     (pnp,) = registry.presets["deepi2p"].combinations
