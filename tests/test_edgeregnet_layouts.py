@@ -47,7 +47,9 @@ def test_shared_mlps_as_matrix_products_equal_the_1x1_convolutions_forward_and_b
     with torch.no_grad():  # float32, as run: the same up to the order of the sums
         plain = torch.nn.Sequential(*copy.deepcopy(list(mlp)))
         fast, reference = mlp(grouped.permute(0, 3, 1, 2)), plain(grouped.permute(0, 3, 1, 2).contiguous())
-        torch.testing.assert_close(fast, reference, rtol=1e-4, atol=1e-4)
+        # 3.6e-5 at most measured, on outputs up to ~6; exactness is the float64 check below, so this margin only
+        # has to clear float32 rounding on any thread count
+        torch.testing.assert_close(fast, reference, rtol=1e-4, atol=5e-4)
     # float64 for gradients: float32 rounding can flip a ReLU near 0 and route a gradient elsewhere
     mlp, plain = mlp.double(), plain.double()
     fast_in = grouped.double().permute(0, 3, 1, 2).requires_grad_()  # channels-last, as SetAbstraction builds it
