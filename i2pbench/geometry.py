@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -44,3 +46,10 @@ def in_image(uv: np.ndarray, front: np.ndarray, size: tuple[int, int]) -> np.nda
     """Mask of projections that land inside an image of (width, height) pixels."""
     w, h = size
     return front & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+
+
+def cell_half_diagonal(side_px: float) -> float:
+    """px from a square cell's centre to its corners: within it, a point projecting anywhere in a cell of this side is
+    as near its centre as the cell allows (11.31 px for 16 px cells, 45.25 for 64). A matcher whose pixels stand for
+    cells (grid keypoints) sets it as `Matches.radius_px`, where eps_c (3 px) would credit only the centre."""
+    return side_px / math.sqrt(2)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from i2pbench_classic.extract2d import GridExtractor2D
 from i2pbench_corri2p import configs
 from i2pbench_corri2p.exchange import CorrI2PExchanger
 from i2pbench_corri2p.frame_norm import FrameNorm
@@ -264,6 +265,7 @@ def test_matches_carry_the_cosine_similarity_of_high_score_keypoints():
     expected = (f2[matches.index2d] * f3[matches.index3d]).sum(1).numpy()
     np.testing.assert_allclose(matches.score, expected, rtol=1e-5, atol=1e-6)
     assert len(np.unique(matches.index2d)) == len(matches) == len(np.unique(matches.index3d))  # mutual
+    assert matches.radius_px == pytest.approx(2.8284, abs=1e-4)  # a 2 px window: a 4 px cell, half diagonal 2 sqrt 2
     matcher.conf.update(mutual=False)  # the paper's rule: every selected point gets a pixel
     assert len(matcher(frame, kp2d, kp3d, features)) == int((z3.sigmoid() > threshold).sum())
 
@@ -290,6 +292,20 @@ def test_stages_refuse_another_global_width():
         == f"exchanger 'corri2p-exchange' has global_dim {G} but encoder3d 'corri2p-pointnet2' has global_dim {G + 8}"
     )
     assert CorrI2PMatcher({**TINY["matcher"], "descriptor_dim": D + 8}).check_compatible({"exchanger": exchanger})
+
+
+@pytest.mark.parametrize(("size", "stride", "radius"), [("PAPER", 8, 5.6569), ("CPU", 16, 11.3137)])
+def test_a_pair_is_true_anywhere_in_the_pixel_s_grid_cell(size, stride, radius):
+    """The pixels are grid cell centres; the matcher's window is that cell, its radius the cell's half diagonal."""
+    conf = getattr(configs, size)
+    assert {**GridExtractor2D.default_conf, **conf.get("extractor2d", {})}["stride"] == stride
+    matcher = CorrI2PMatcher(conf["matcher"])
+    assert 2 * matcher.conf["overlap_window_px"] == stride
+    frame, kp2d, kp3d = tiny_frame()
+    features = Features(
+        torch.zeros(len(kp2d), matcher.conf["descriptor_dim"]), torch.zeros(len(kp3d), matcher.conf["descriptor_dim"])
+    )
+    assert matcher(frame, kp2d, kp3d, features).radius_px == pytest.approx(radius, abs=1e-4)
 
 
 @pytest.mark.parametrize("size", ["PAPER", "CPU"])

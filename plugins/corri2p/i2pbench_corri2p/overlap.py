@@ -13,6 +13,9 @@ What differs, and why:
 - the overlap loss is a class-balanced binary cross-entropy (the mean over overlapping keypoints plus the mean over
   the others); the paper's code penalises (1 - s) and s over 512 sampled keypoints of each class, the same balance
   with a linear rather than logarithmic penalty;
+- a pair is true when the point projects anywhere in the pixel's grid cell (`Matches.radius_px`: the cell's half
+  diagonal, 11.31 px at the CPU size's stride 16, 5.66 px at the paper size's stride 8), the resolution at which
+  the paper defines its pairs and overlap; eps_c (3 px) would credit only the cell's centre;
 - the heads are Linear + ReLU layers normalised over each frame's keypoints (frame_norm.py), the paper's 1x1
   convolutions with BatchNorm with one frame's statistics instead of a batch's.
 """
@@ -38,6 +41,7 @@ from i2pbench.api import (
     Matches,
     StageError,
 )
+from i2pbench.geometry import cell_half_diagonal
 
 from .exchange import width_mismatch
 from .frame_norm import FrameMLP
@@ -124,6 +128,7 @@ class CorrI2PMatcher(LearnedComponent, Matcher):
             keep2[rows].cpu().numpy().astype(np.int64),
             keep3[cols].cpu().numpy().astype(np.int64),
             sim[rows, cols].float().cpu().numpy().astype(np.float32),
+            radius_px=cell_half_diagonal(2 * self.conf["overlap_window_px"]),  # a pixel stands for its grid cell
         )
 
     def prepare(

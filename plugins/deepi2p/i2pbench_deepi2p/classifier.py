@@ -45,8 +45,8 @@ from i2pbench.api import (
     Matches,
     StageError,
 )
+from i2pbench.geometry import cell_half_diagonal
 
-from .grid_matches import cell_radius
 from .labels import cell_centres, cell_of_pixels, frustum_labels, grid_labels
 from .positions import feature_width, fourier_features, normalised_pixels
 
@@ -151,7 +151,7 @@ class DeepI2PClassifier(LearnedComponent, Matcher):
             inside.cpu().numpy().astype(np.int64),
             (frustum[inside] * best.values).cpu().numpy().astype(np.float32),
             frustum=scores,
-            radius_px=cell_radius(self.conf["cell_px"]),  # a pair is a cell: true anywhere in it
+            radius_px=cell_half_diagonal(self.conf["cell_px"]),  # a pair is a cell: true anywhere in it
         )
 
     def prepare(

@@ -4,10 +4,9 @@ centre (a matcher's output), so the classic EPnP-RANSAC solver needs nothing new
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from i2pbench.geometry import cell_half_diagonal
 from i2pbench.types import Keypoints2D, Matches
 
 from .labels import cell_centres, grid_shape
@@ -19,16 +18,10 @@ def cell_keypoints(size: tuple[int, int], cell: int) -> Keypoints2D:
     return Keypoints2D(cell_centres(np.arange(rows * cols), size, cell).astype(np.float32))
 
 
-def cell_radius(cell: int) -> float:
-    """px within which a point-to-cell-centre pair counts as true: the cell's half diagonal (45.25 for 64 px), so a
-    point that projects anywhere in its cell is a true match, where eps_c (3 px) would credit only its centre."""
-    return cell / math.sqrt(2)
-
-
 def cell_matches(cells: np.ndarray, scores: np.ndarray, cell: int) -> Matches:
     """Matches pairing LiDAR keypoint j with cell_keypoints' keypoint cells[j]; cells[j] = -1 (predicted outside the
     frustum) gives no match. `scores` [M3] is each keypoint's confidence (e.g. its frustum times cell probability);
-    the pairs are judged true within `cell_radius(cell)`."""
+    the pairs are judged true within the cell's half diagonal (`cell_half_diagonal`)."""
     cells = np.asarray(cells, dtype=np.int64)
     kept = np.flatnonzero(cells >= 0)
-    return Matches(cells[kept], kept, np.asarray(scores, dtype=np.float32)[kept], radius_px=cell_radius(cell))
+    return Matches(cells[kept], kept, np.asarray(scores, dtype=np.float32)[kept], radius_px=cell_half_diagonal(cell))
