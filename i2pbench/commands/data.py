@@ -19,6 +19,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     synth.add_argument("--val", type=int, default=None, help="frames in the val split")
     synth.add_argument("--test", type=int, default=None, help="frames in the test split")
     synth.add_argument("--seed", type=int, default=0)
+    synth.add_argument(
+        "--style",
+        default="default",
+        help="generator style: default, or kitti (image tone and texture, clutter and reflectance fitted to real "
+        "KITTI); a style other than the default has its own cache directory",
+    )
     synth.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     synth.add_argument("--quiet", action="store_true", help="no progress bar")
     nus = data_sub.add_parser("nuscenes-dataroot", help="build a nuScenes devkit dataroot from record folders")
@@ -35,8 +41,11 @@ def run(args: argparse.Namespace) -> int:
 
     frames = dict(SyntheticStreets.default_conf["frames"])
     frames.update({k: v for k, v in (("train", args.train), ("val", args.val), ("test", args.test)) if v is not None})
-    root = generate(args.root, frames["train"], frames["val"], frames["test"], seed=args.seed, workers=args.workers)
-    print(f"synthetic dataset ready at {root} ({frames})", file=sys.stderr)
+    root = generate(
+        args.root, frames["train"], frames["val"], frames["test"], args.seed, args.workers, style=args.style
+    )
+    style = "" if args.style == "default" else f", style {args.style}; use --data-conf style={args.style}"
+    print(f"synthetic dataset ready at {root} ({frames}{style})", file=sys.stderr)
     return 0
 
 

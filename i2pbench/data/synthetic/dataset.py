@@ -11,6 +11,7 @@ import json
 import os
 import shutil
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -18,27 +19,46 @@ from ...errors import DataError
 from ...types import SensorFrame
 from ..base import Dataset
 from ..kitti import KittiOdometry, read_frame, sequence_stems
+from .style import get_style
 from .version import GENERATOR_VERSION
 
 SPLIT_SEQUENCES = {"train": "00", "val": "01", "test": "02"}
 MARKER = "synthetic.json"
 
 
-def default_root(seed: int) -> Path:
-    return Path("~/.cache/i2pbench").expanduser() / f"synthetic-v{GENERATOR_VERSION}-seed{seed}"
+def default_root(seed: int, style: str = "default") -> Path:
+    """~/.cache/i2pbench/synthetic-v{version}-seed{seed}, or ...-v{version}-{style}-seed{seed} for another style."""
+    tag = "" if style == "default" else f"-{style}"
+    return Path("~/.cache/i2pbench").expanduser() / f"synthetic-v{GENERATOR_VERSION}{tag}-seed{seed}"
 
 
-def marker(seed: int, sequence: str, n_frames: int) -> dict[str, Any]:
-    return {"generator_version": GENERATOR_VERSION, "seed": int(seed), "sequence": sequence, "frames": int(n_frames)}
+def marker(seed: int, sequence: str, n_frames: int, style: str = "default") -> dict[str, Any]:
+    """What a sequence was made with. The style (and its knob values, so a refitted style regenerates) only when it
+    is not the default, so the caches made before styles existed stay valid."""
+    made = {"generator_version": GENERATOR_VERSION, "seed": int(seed), "sequence": sequence, "frames": int(n_frames)}
+    return made if style == "default" else {**made, "style": style, "style_knobs": get_style(style).knobs()}
 
 
-def ensure_sequence(root: Path, sequence: str, n_frames: int, seed: int, workers: int | None = None) -> Path:
-    """The sequence folder, generated unless a complete one with the same marker is already there."""
+def ensure_sequence(
+    root: Path, sequence: str, n_frames: int, seed: int, workers: int | None = None, style: str = "default"
+) -> Path:
+    """The sequence folder, generated unless a complete one with the same marker is already there.
+
+    An outdated sequence of the same style is replaced; one of another style is refused, not overwritten (each style
+    has its own default root, so this only happens when one root is given for two styles).
+    """
     target = Path(root) / "sequences" / sequence
-    wanted = marker(seed, sequence, n_frames)
+    wanted = marker(seed, sequence, n_frames, style)
+    look = get_style(style)
     if (target / MARKER).is_file():
-        if json.loads((target / MARKER).read_text()) == wanted:
+        found = json.loads((target / MARKER).read_text())
+        if found == wanted:
             return target
+        if found.get("style", "default") != style:
+            raise DataError(
+                f"{target} holds synthetic style {found.get('style', 'default')!r}, not {style!r}; not replacing it "
+                "(use another root for this style)"
+            )
         _retire(target)
     elif target.exists():
         raise DataError(f"{target} exists but was not made by the synthetic generator (no {MARKER}); not touching it")
@@ -47,7 +67,7 @@ def ensure_sequence(root: Path, sequence: str, n_frames: int, seed: int, workers
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{sequence}-", dir=target.parent)) / sequence
     try:
-        write_sequence(tmp, n_frames, seed, workers)
+        write_sequence(tmp, n_frames, seed, workers, look)
         (tmp / MARKER).write_text(json.dumps(wanted, indent=1) + "\n")
         try:
             os.rename(tmp, target)
@@ -73,11 +93,14 @@ def generate(
     n_test: int = 40,
     seed: int = 0,
     workers: int | None = None,
+    style: str = "default",
 ) -> Path:
-    """Generate (or reuse) all three splits under root (default ~/.cache/i2pbench/synthetic-v{version}-seed{seed})."""
-    root = Path(root).expanduser() if root else default_root(seed)
+    """Generate (or reuse) all three splits under root (default ~/.cache/i2pbench/synthetic-v{version}-seed{seed},
+    with `-{style}` before `-seed` for a style other than the default)."""
+    get_style(style)
+    root = Path(root).expanduser() if root else default_root(seed, style)
     for split, n in (("train", n_train), ("val", n_val), ("test", n_test)):
-        ensure_sequence(root, SPLIT_SEQUENCES[split], n, seed, workers)
+        ensure_sequence(root, SPLIT_SEQUENCES[split], n, seed, workers, style)
     return root
 
 
@@ -87,17 +110,22 @@ class SyntheticStreets(Dataset):
     name = "synthetic"
     splits = ("train", "val", "test")
     default_conf: ClassVar[dict[str, Any]] = {
-        "root": None,  # None: ~/.cache/i2pbench/synthetic-v{version}-seed{seed} (or I2PBENCH_SYNTHETIC_ROOT)
+        "root": None,  # None: ~/.cache/i2pbench/synthetic-v{version}[-{style}]-seed{seed} (or I2PBENCH_SYNTHETIC_ROOT)
         "seed": 0,  # scene seed; every frame is a function of (seed, sequence, index)
         "frames": {"train": 400, "val": 20, "test": 40},  # frames per split (missing keys keep the defaults)
         "workers": None,  # processes for generation; None = all cores
+        "style": "default",  # generator style (style.py): "kitti" moves the statistics towards real KITTI's
     }
     match_radius_px = 3.0
+
+    def __init__(self, split: str, conf: Mapping[str, Any] | None = None) -> None:
+        super().__init__(split, conf)
+        get_style(self.conf["style"])  # an unknown style fails here, before any folder is named or made
 
     @property
     def root(self) -> Path:
         root = self.conf.get("root") or os.environ.get("I2PBENCH_SYNTHETIC_ROOT")
-        return Path(root).expanduser() if root else default_root(int(self.conf["seed"]))
+        return Path(root).expanduser() if root else default_root(int(self.conf["seed"]), self.conf["style"])
 
     @property
     def n_frames(self) -> int:
@@ -105,9 +133,8 @@ class SyntheticStreets(Dataset):
         return int(frames[self.split])
 
     def sequence_dir(self) -> Path:
-        return ensure_sequence(
-            self.root, SPLIT_SEQUENCES[self.split], self.n_frames, int(self.conf["seed"]), self.conf["workers"]
-        )
+        seed, workers, style = int(self.conf["seed"]), self.conf["workers"], self.conf["style"]
+        return ensure_sequence(self.root, SPLIT_SEQUENCES[self.split], self.n_frames, seed, workers, style)
 
     def frame_ids(self) -> list[str]:
         seq = self.sequence_dir()
@@ -128,11 +155,15 @@ class SyntheticStreets(Dataset):
         return KittiOdometry.layout_files(self.root / "sequences" / sequence, stem)
 
     def identity(self) -> dict[str, Any]:
-        """Generator version, seed and frame count fix the data; the folder it sits in does not."""
-        return {
+        """Generator version, seed, frame count and style fix the data; the folder it sits in does not. The style
+        is named only when it is not the default, so results of the default data keep their identity."""
+        identity = {
             "dataset": self.name,
             "split": self.split,
             "seed": int(self.conf["seed"]),
             "frames": self.n_frames,
             "generator_version": GENERATOR_VERSION,
         }
+        if self.conf["style"] != "default":
+            identity["style"] = self.conf["style"]
+        return identity

@@ -19,6 +19,7 @@ from .lidar import scan
 from .raycast import Caster
 from .rig import calib_text, camera2, hdl64, on_uneven_road
 from .scene import build_scene
+from .style import DEFAULT, Style, style_rng
 from .version import GENERATOR_VERSION
 
 
@@ -26,26 +27,31 @@ def frame_rng(seed: int, sequence: str, index: int) -> np.random.Generator:
     return np.random.default_rng([GENERATOR_VERSION, int(seed), int(sequence), int(index)])
 
 
-def simulate(seed: int, sequence: str, index: int, nthreads: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def simulate(
+    seed: int, sequence: str, index: int, nthreads: int = 0, style: Style = DEFAULT
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(points [N x 4] float32, ring [N] int16, image [H x W x 3] uint8 RGB) of one frame."""
     rng = frame_rng(seed, sequence, index)
-    caster = Caster(build_scene(rng), nthreads=nthreads)
+    extra = style_rng(style, GENERATOR_VERSION, seed, int(sequence), index)
+    caster = Caster(build_scene(rng, style, extra), nthreads=nthreads)
     lidar = on_uneven_road(hdl64(), rng)
-    points, ring, _ = scan(caster, lidar, rng)
-    return points, ring, render(caster, camera2(), lidar.pose, rng)
+    points, ring, _ = scan(caster, lidar, rng, style)
+    return points, ring, render(caster, camera2(), lidar.pose, rng, style)
 
 
-def write_frame(sequence_dir: Path, seed: int, index: int, nthreads: int = 0) -> None:
+def write_frame(sequence_dir: Path, seed: int, index: int, nthreads: int = 0, style: Style = DEFAULT) -> None:
     """Simulate and write frame `index` of the sequence directory (named by its two-digit sequence number)."""
     sequence_dir = Path(sequence_dir)
-    points, _, image = simulate(seed, sequence_dir.name, index, nthreads)
+    points, _, image = simulate(seed, sequence_dir.name, index, nthreads, style)
     stem = f"{index:06d}"
     points.astype("<f4").tofile(sequence_dir / "velodyne" / f"{stem}.bin")
     if not cv2.imwrite(str(sequence_dir / "image_2" / f"{stem}.png"), image[:, :, ::-1]):
         raise OSError(f"could not write {sequence_dir / 'image_2' / f'{stem}.png'}")
 
 
-def write_sequence(sequence_dir: Path, n_frames: int, seed: int, workers: int | None = None) -> None:
+def write_sequence(
+    sequence_dir: Path, n_frames: int, seed: int, workers: int | None = None, style: Style = DEFAULT
+) -> None:
     """All frames of one sequence plus its calib.txt; frames are spread over `workers` processes."""
     sequence_dir = Path(sequence_dir)
     for sub in ("velodyne", "image_2"):
@@ -55,22 +61,24 @@ def write_sequence(sequence_dir: Path, n_frames: int, seed: int, workers: int | 
     with bar(n_frames, f"synthesising {sequence_dir.name}") as progress:
         if workers <= 1:
             for index in range(n_frames):
-                write_frame(sequence_dir, seed, index)
+                write_frame(sequence_dir, seed, index, style=style)
                 progress.update()
             return
         # forkserver: workers start from a clean process (no inherited ray-caster threads) and import once.
         ctx = multiprocessing.get_context("forkserver")
         ctx.set_forkserver_preload([__name__])
         with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-            jobs = [pool.submit(write_frame, sequence_dir, seed, index, 1) for index in range(n_frames)]
+            jobs = [pool.submit(write_frame, sequence_dir, seed, index, 1, style) for index in range(n_frames)]
             for job in jobs:
                 job.result()
                 progress.update()
 
 
-def generate_kitti(out_dir: Path, sequences: dict[str, int], seed: int = 0, workers: int | None = None) -> Path:
+def generate_kitti(
+    out_dir: Path, sequences: dict[str, int], seed: int = 0, workers: int | None = None, style: Style = DEFAULT
+) -> Path:
     """Write sequences (two-digit name -> number of frames) under out_dir/sequences; returns out_dir."""
     out_dir = Path(out_dir)
     for sequence, n_frames in sequences.items():
-        write_sequence(out_dir / "sequences" / f"{int(sequence):02d}", n_frames, seed, workers)
+        write_sequence(out_dir / "sequences" / f"{int(sequence):02d}", n_frames, seed, workers, style)
     return out_dir

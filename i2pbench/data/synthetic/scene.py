@@ -15,6 +15,7 @@ import numpy as np
 from . import props
 from .mesh import Mesh, MeshBuilder
 from .palette import Palette
+from .style import DEFAULT, Style
 from .textures import Material
 
 EXTENT = 150.0  # metres of road modelled each way; the LiDAR sees 100 m at most
@@ -64,8 +65,15 @@ class Road:
         return abs(s - self.crossing[0]) < self.crossing[1] / 2 + margin
 
 
-def build_scene(rng: np.random.Generator) -> Scene:
-    """One random street scene; every draw comes from rng, so a seed fixes the scene."""
+def build_scene(
+    rng: np.random.Generator, style: Style = DEFAULT, style_rng: np.random.Generator | None = None
+) -> Scene:
+    """One random street scene; every draw comes from rng, so a seed fixes the scene.
+
+    A style with `props` above 1 adds clutter drawn from `style_rng` (default: a generator spawned from rng, which
+    draws nothing from it), so the street under the extra objects, its lighting and every later draw from rng are
+    the default style's.
+    """
     b, pal = MeshBuilder(), Palette(rng)
     road, lanes = _road(rng)
     _ground(b, pal, road, lanes)
@@ -74,6 +82,11 @@ def build_scene(rng: np.random.Generator) -> Scene:
         _roadside(b, pal, road, side)
         _parked_cars(b, pal, road, side)
     _traffic(b, pal, road, lanes)
+    if style.props > 1:
+        extra = Palette(style_rng if style_rng is not None else rng.spawn(1)[0])
+        extra.materials = pal.materials  # one material list: ids stored on triangles index it
+        for side in (1, -1):
+            _more_props(b, extra, road, side, style.props - 1)
     return Scene(b.build(), pal.materials, _lighting(rng))
 
 
@@ -216,18 +229,37 @@ def _furniture(b, pal: Palette, road: Road, side: int) -> None:
     _clutter(b, pal, road, side)
 
 
-def _clutter(b, pal: Palette, road: Road, side: int) -> None:
+def _clutter(b, pal: Palette, road: Road, side: int, count: int | None = None) -> None:
     """People, bins, bollards and shrubs on the pavement: small objects with depth edges of their own."""
     r = pal.rng
     width = road.walk[0 if side > 0 else 1]
     builders = [props.pedestrian, props.pedestrian, props.bin_, props.bollard, props.bush]
-    for _ in range(int(r.integers(0, 12))):
+    for _ in range(int(r.integers(0, 12)) if count is None else count):
         s = r.uniform(-40, 80)
         if road.blocked(s, 2.0):
             continue
         build = builders[int(r.integers(len(builders)))]
         t = road.edge(side) + side * r.uniform(0.4, width - 0.4)
         build(b, pal, road.world(s, t), road.yaw + r.uniform(0, 2 * np.pi))
+
+
+def _more_props(b, pal: Palette, road: Road, side: int, amount: float) -> None:
+    """More depth edges along the pavement for a style's `props` (amount = props - 1): `amount` times the default's
+    pavement clutter, lamp posts and kerbside trees again, and bushes at the back of the pavement."""
+    r = pal.rng
+    _clutter(b, pal, road, side, int(r.poisson(5.5 * amount)))
+    t_kerb = road.edge(side) + side * 0.5
+    s = -90 + r.uniform(0, 30)
+    while s < 110:  # poles: the default's lamp-post spacing, shortened
+        if not road.blocked(s, 1.0):
+            props.street_light(b, pal, road.world(s, t_kerb + side * r.uniform(0, 0.3)), road.yaw - side * np.pi / 2)
+        s += r.uniform(20, 40) / amount
+    if r.random() < min(0.4 * amount, 1.0):
+        _trees(b, pal, road, side, road.edge(side) + side * 1.2, (7 / amount, 15 / amount))
+    for _ in range(int(r.poisson(4 * amount))):  # bushes at the back of the pavement
+        s = r.uniform(-40, 80)
+        if not road.blocked(s, 2.0):
+            props.bush(b, pal, road.world(s, road.edge(side) + side * (road.walk[0 if side > 0 else 1] - 0.3)))
 
 
 def _parked_cars(b, pal: Palette, road: Road, side: int) -> None:
