@@ -433,9 +433,12 @@ def spread(ids: list[str], count: int) -> list[str]:
 
 
 def _data_of(identity: dict[str, Any]) -> dict[str, Any]:
-    """what names the training data (dataset, split, root; each mixed-in source's and its share), without counts or
-    configs; an unmixed run's is what it was before mixes existed, so its checkpoints resume as one phase."""
+    """what names the training data (dataset, split, root, a non-default style; each mixed-in source's and its
+    share), without counts or configs; an unmixed run's is what it was before mixes existed, so its checkpoints
+    resume as one phase."""
     named = {k: identity.get(k) for k in ("dataset", "split", "root")}
+    if identity.get("style"):  # a synthetic set in another style is other data (absent for the default style)
+        named["style"] = identity["style"]
     if identity.get("mix"):
         named["mix"] = [{**_data_of(m), "share": m.get("share")} for m in identity["mix"]]
     return named

@@ -58,9 +58,15 @@ class Checkpoint:
 
 
 def data_label(data: dict[str, Any]) -> str:
-    """`dataset/split` of a training phase's data, then `+ dataset/split (share)` per mixed-in source."""
-    mixed = [f" + {m.get('dataset', '?')}/{m.get('split', '?')} ({m.get('share', '?')})" for m in data.get("mix", [])]
-    return f"{data.get('dataset', '?')}/{data.get('split', '?')}" + "".join(mixed)
+    """`dataset/split` of a training phase's data, then `+ dataset/split (share)` per mixed-in source; a dataset
+    made in a non-default style says which: `synthetic[kitti]/train`."""
+    mixed = [f" + {_source(m)} ({m.get('share', '?')})" for m in data.get("mix", [])]
+    return _source(data) + "".join(mixed)
+
+
+def _source(data: dict[str, Any]) -> str:
+    style = f"[{data['style']}]" if data.get("style") else ""
+    return f"{data.get('dataset', '?')}{style}/{data.get('split', '?')}"
 
 
 def file_digest(path: Path) -> str:

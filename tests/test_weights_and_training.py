@@ -13,7 +13,7 @@ from i2pbench.protocol import Protocol
 from i2pbench.runs.runner import prepare, run_grid
 from i2pbench.runs.store import ResultsStore
 from i2pbench.training import TrainConfig, Trainer, training_meta
-from i2pbench.weights import apply_checkpoint, load_checkpoint, save_checkpoint, select_checkpoint
+from i2pbench.weights import apply_checkpoint, data_label, load_checkpoint, save_checkpoint, select_checkpoint
 
 LEARNED = {
     "extractor2d": "grid",
@@ -98,6 +98,17 @@ def test_trained_on_counts_frames_when_a_step_took_several(registry, tmp_path):
     path = save_checkpoint(tmp_path / "one.pt", _pipeline(registry), steps=8500, train_config={"effective_batch": 1},
                            trained_on={"dataset": "synthetic", "split": "train"})  # fmt: skip
     assert load_checkpoint(path).trained_on == "synthetic/train, 8500 steps"  # as every one-frame checkpoint reads
+
+
+def test_trained_on_names_a_synthetic_style_and_its_phase(registry, tmp_path):
+    styled = {"dataset": "synthetic", "split": "train", "root": "", "style": "kitti"}
+    path = save_checkpoint(tmp_path / "s.pt", _pipeline(registry), steps=8900, train_config={"effective_batch": 1},
+                           trained_on=styled, lineage=[{"dataset": "synthetic", "split": "train", "root": "",
+                                                        "steps": 8500}])  # fmt: skip
+    assert load_checkpoint(path).trained_on == "synthetic/train 8500 + synthetic[kitti]/train, 8900 steps"
+    assert data_label({**styled, "mix": [{"dataset": "kitti", "split": "train", "share": 0.5}]}) == (
+        "synthetic[kitti]/train + kitti/train (0.5)"
+    )
 
 
 def test_a_checkpoint_for_another_config_is_refused_with_a_clear_message(registry, tmp_path):
@@ -290,6 +301,22 @@ def test_fine_tuning_on_other_data_keeps_the_earlier_phase_in_the_checkpoint_ide
     assert checkpoint.lineage == [{"dataset": "toy", "split": "test", "root": "", "steps": 2}]
     assert checkpoint.trained_on == "toy/test 2 + toy/test, 3 steps"
     assert checkpoint.meta["trained_on"]["root"] == "/data/real"
+
+
+class KittiStyled(Clean):
+    def identity(self):
+        return {**super().identity(), "style": "kitti"}
+
+
+def test_fine_tuning_on_another_synthetic_style_is_a_phase_of_its_own(registry, tmp_path):
+    first = _trainer(registry, tmp_path / "w.pt", steps=2)
+    first.run(training_meta(Clean("test"), first.config))
+    config = TrainConfig(steps=3, lr=0.05, checkpoint_every=1, validate_every=1000, seed=1)
+    styled = KittiStyled("test")
+    tuned = Trainer(_pipeline(registry), styled, None, tmp_path / "w.pt", config)
+    assert tuned.resume() and tuned.step == 2
+    tuned.run(training_meta(styled, config))
+    assert load_checkpoint(tmp_path / "w.pt").trained_on == "toy/test 2 + toy[kitti]/test, 3 steps"
 
 
 def test_auto_weights_prefer_a_checkpoint_trained_on_the_run_s_dataset(registry, tmp_path):
