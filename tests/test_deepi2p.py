@@ -421,6 +421,21 @@ def test_the_method_s_configs_build_and_agree(size):
     assert upstream["exchanger"].check_compatible(upstream) is None
 
 
+def test_the_cpu_size_classifies_points_in_their_yaw_canonical_frame():
+    """The CPU size's point features do not move with the protocol's yaw and shift (the paper's size learns that)."""
+    frame, _, kp3d = tiny_frame()
+    encoder = DeepI2PPointEncoder({**TINY["encoder3d"], "canonical_yaw": configs.CPU["encoder3d"]["canonical_yaw"]})
+    c, s = math.cos(2.0), math.sin(2.0)
+    moved = frame.points.copy()
+    moved[:, :3] = frame.points[:, :3] @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], np.float32).T + [7.0, -3.0, 0]
+    moved_frame = dataclasses.replace(frame, points=moved)
+    with torch.no_grad():
+        before = encoder(frame, kp3d)
+        after = encoder(moved_frame, Keypoints3D.from_index(moved_frame, kp3d.index))
+    torch.testing.assert_close(after, before, atol=2e-4, rtol=1e-3)
+    assert not DeepI2PPointEncoder({**TINY["encoder3d"]}).conf["canonical_yaw"]  # the paper's size: off
+
+
 # --- training
 
 
