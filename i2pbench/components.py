@@ -52,6 +52,9 @@ class Component:
     consumes: ClassVar[frozenset[str]] = frozenset()
     provides: ClassVar[frozenset[str]] = frozenset()
     learned: ClassVar[bool] = False  # True for components whose parameters come from a checkpoint
+    # bump when the outputs change for the same name, config and weights (a fixed bug, a new field): results cached
+    # by the old code are then recomputed instead of reused (0 adds nothing to the cache key)
+    revision: ClassVar[int] = 0
 
     def __init__(self, conf: Mapping[str, Any] | None = None) -> None:
         self.conf = merge_conf(self.default_conf, conf, f"{self.kind} {self.name!r}")

@@ -77,6 +77,18 @@ def test_a_repaired_scan_is_recomputed_and_an_unchanged_frame_reused(registry, k
     assert len(list(store.frames_dir.glob("*.parquet"))) == 2
 
 
+def test_a_new_revision_recomputes_what_the_old_code_cached(registry, kitti, tmp_path, counted, monkeypatch):
+    store = ResultsStore(tmp_path / "runs")
+    assert _run(registry, kitti, store) == {"00/000000": "ok", "00/000001": "ok"}
+    job = prepare(registry, [Combination(BASE)])[0]
+    assert "revision" not in job.stages()["matcher"]  # revision 0: keys as they were before revisions existed
+    monkeypatch.setattr(type(job.pipeline.stages["matcher"]), "revision", 1)
+    assert job.stages()["matcher"]["revision"] == 1
+    assert _run(registry, kitti, store) == {"00/000000": "ok", "00/000001": "ok"}
+    assert _run(registry, kitti, store) == {"00/000000": "ok", "00/000001": "ok"}
+    assert counted == [*FRAMES, *FRAMES]  # recomputed once for the new revision, then reused
+
+
 def test_a_changed_calibration_recomputes_every_frame_of_its_sequence(registry, kitti, tmp_path, counted):
     store, calib = ResultsStore(tmp_path / "runs"), kitti.root / "sequences" / "00" / "calib.txt"
     _run(registry, kitti, store)

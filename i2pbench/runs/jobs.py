@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from ..components import Component
 from ..data.base import Dataset
 from ..pipeline import Combination, Pipeline, stage_classes
 from ..plugins import Registry
@@ -42,14 +43,20 @@ class Job:
         return self.combination.display
 
     def stages(self) -> dict[str, dict[str, Any]]:
-        """Each stage's name and full config (defaults merged): a changed default changes the cache key."""
-        return {kind: {"name": c.name, "conf": c.conf} for kind, c in self.pipeline.stages.items()}
+        """Each stage's name, full config (defaults merged) and revision: a changed default or a bumped revision
+        changes the cache key; revision 0 is left out, so keys made before revisions existed still match."""
+        return {kind: _described(c) for kind, c in self.pipeline.stages.items()}
 
     def to(self, device: str) -> Job:
         """Move the learned stages to `device` (a worker's own), recording where they run."""
         self.pipeline.to(device)
         self.device = device
         return self
+
+
+def _described(component: Component) -> dict[str, Any]:
+    described = {"name": component.name, "conf": component.conf}
+    return {**described, "revision": component.revision} if component.revision else described
 
 
 def prepare(

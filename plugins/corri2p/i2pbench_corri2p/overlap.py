@@ -79,6 +79,7 @@ class CorrI2PMatcher(LearnedComponent, Matcher):
     """Overlap scores on both sides, then pairs of high-score pixels and points by descriptor similarity."""
 
     name = "corri2p-overlap"
+    revision = 1  # 1: pairs carry the grid cell's radius (results cached before were judged within eps_c)
     runtime_keys = frozenset({"score_threshold", "max_candidates", "mutual"})  # inference only: any value fits
     default_conf: dict[str, Any] = {
         "descriptor_dim": 640,  # D, must equal the exchanger's (or the encoders')
