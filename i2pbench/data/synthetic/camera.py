@@ -70,8 +70,7 @@ def _shade(caster: Caster, hits: Hits, albedo: np.ndarray, light: Lighting, ambi
     shadow = caster.occluded(hits.points[lit] + hits.normals[lit] * 0.01, light.sun)
     lambert[lit[shadow]] = 0.0
     sky_view = 0.7 + 0.3 * hits.normals[:, 2]
-    ambient_rgb = light.ambient_rgb if ambient == 1.0 else light.ambient_rgb * ambient
-    return albedo * (ambient_rgb * sky_view[:, None] + light.sun_rgb * lambert[:, None])
+    return albedo * (light.ambient_rgb * ambient * sky_view[:, None] + light.sun_rgb * lambert[:, None])
 
 
 def _sky(dirs: np.ndarray, light: Lighting) -> np.ndarray:

@@ -52,10 +52,8 @@ def _reflectance(
     falloff = 1.0 / (1.0 + (t / 35.0) ** 2)
     speckle = np.exp(rng.normal(0, 0.2, len(t)))
     refl = 1.3 * albedo_ir * (0.6 + 0.4 * np.abs(cos_inc)) * falloff * speckle - 0.04 + rng.normal(0, 0.02, len(t))
-    if offset:
-        refl -= offset
-    if floor:
-        refl[refl < floor] = 0.0
+    refl = refl - offset
+    refl[refl < floor] = 0.0  # below a floor of 0 the clip does the same
     return np.round(np.clip(refl, 0, 1), 2)
 
 
@@ -63,6 +61,4 @@ def _porosity(caster: Caster, tri: np.ndarray, rng: np.random.Generator, scale: 
     """Extra range for returns from porous surfaces (foliage): the beam goes some way into the crown (a style's
     `foliage_depth` scales how far)."""
     depth = np.array([m.params.get("porosity", 0.0) for m in caster.scene.materials])[caster.scene.mesh.material[tri]]
-    if scale != 1.0:
-        depth = depth * scale
-    return rng.exponential(1.0, len(tri)) * depth
+    return rng.exponential(1.0, len(tri)) * depth * scale

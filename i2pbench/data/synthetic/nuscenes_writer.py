@@ -23,7 +23,6 @@ from .lidar import scan
 from .raycast import Caster
 from .rig import Camera, Lidar, on_uneven_road
 from .scene import build_scene
-from .style import DEFAULT, Style, style_rng
 from .version import GENERATOR_VERSION
 
 MINI_TRAIN = [
@@ -84,27 +83,21 @@ def rig() -> tuple[Lidar, Camera]:
     return lidar, camera
 
 
-def simulate(seed: int, scene: int, sample: int, style: Style = DEFAULT) -> tuple[np.ndarray, np.ndarray]:
+def simulate(seed: int, scene: int, sample: int) -> tuple[np.ndarray, np.ndarray]:
     """([N x 5] float32 sweep in nuScenes' .pcd.bin layout, [900 x 1600 x 3] uint8 RGB) of one sample."""
-    words = (GENERATOR_VERSION, int(seed), 1_000_000 + scene, sample)
-    rng = np.random.default_rng(list(words))
-    caster = Caster(build_scene(rng, style, style_rng(style, *words)))
+    rng = np.random.default_rng([GENERATOR_VERSION, int(seed), 1_000_000 + scene, sample])
+    caster = Caster(build_scene(rng))
     lidar, camera = rig()
     lidar = on_uneven_road(lidar, rng)
-    points, ring, step = scan(caster, lidar, rng, style)
+    points, ring, step = scan(caster, lidar, rng)
     order = np.lexsort((ring, step))  # firing by firing: every beam of one azimuth step, bottom beam first
     intensity = np.round(255 * points[order, 3].astype(np.float64) ** 2)
     sweep = np.column_stack([points[order, :3], intensity, ring[order]]).astype(np.float32)
-    return sweep, render(caster, camera, lidar.pose, rng, style)
+    return sweep, render(caster, camera, lidar.pose, rng)
 
 
 def generate_nuscenes(
-    dataroot: Path,
-    n_scenes: int = 2,
-    samples_per_scene: int = 2,
-    seed: int = 0,
-    version: str = "v1.0-mini",
-    style: Style = DEFAULT,
+    dataroot: Path, n_scenes: int = 2, samples_per_scene: int = 2, seed: int = 0, version: str = "v1.0-mini"
 ) -> Path:
     """Write a dataroot with n_scenes scenes of samples_per_scene keyframes each; returns dataroot."""
     dataroot = Path(dataroot)
@@ -112,7 +105,7 @@ def generate_nuscenes(
     names = [n for pair in zip(MINI_TRAIN, MINI_VAL + [None] * 6, strict=True) for n in pair if n]
     for i in range(n_scenes):
         name = names[i] if i < len(names) else f"scene-synthetic-{i:04d}"
-        _write_scene(dataroot, tables, seed, i, name, samples_per_scene, style)
+        _write_scene(dataroot, tables, seed, i, name, samples_per_scene)
     (dataroot / version).mkdir(parents=True, exist_ok=True)
     for name, records in tables.items():
         (dataroot / version / f"{name}.json").write_text(json.dumps(records, indent=1))
@@ -162,9 +155,7 @@ def _static_tables(dataroot: Path, seed: int) -> dict[str, list[dict]]:
     }
 
 
-def _write_scene(
-    dataroot: Path, tables: dict, seed: int, scene: int, name: str, n_samples: int, style: Style = DEFAULT
-) -> None:
+def _write_scene(dataroot: Path, tables: dict, seed: int, scene: int, name: str, n_samples: int) -> None:
     samples = [_token(seed, "sample", scene, k) for k in range(n_samples)]
     tables["scene"].append(
         {
@@ -188,7 +179,7 @@ def _write_scene(
                 "next": samples[k + 1] if k + 1 < n_samples else "",
             }
         )
-        sweep, image = simulate(seed, scene, k, style)
+        sweep, image = simulate(seed, scene, k)
         pose = {"rotation": [1.0, 0.0, 0.0, 0.0], "translation": [600.0 + 10.0 * k, 1600.0 + 100.0 * scene, 0.0]}
         for channel, ext in (("LIDAR_TOP", "pcd.bin"), ("CAM_FRONT", "jpg")):
             filename = f"samples/{channel}/synthetic__{channel}__{stamp}.{ext}"
