@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from ...errors import DataError
+from ...paths import cache_home
 from ...types import SensorFrame
 from ..base import Dataset
 from ..kitti import KittiOdometry, read_frame, sequence_stems
@@ -27,9 +28,10 @@ MARKER = "synthetic.json"
 
 
 def default_root(seed: int, style: str = "default") -> Path:
-    """~/.cache/i2pbench/synthetic-v{version}-seed{seed}, or ...-v{version}-{style}-seed{seed} for another style."""
+    """<cache>/synthetic-v{version}-seed{seed}, or ...-v{version}-{style}-seed{seed} for another style, where <cache>
+    is $XDG_CACHE_HOME/i2pbench or ~/.cache/i2pbench."""
     tag = "" if style == "default" else f"-{style}"
-    return Path("~/.cache/i2pbench").expanduser() / f"synthetic-v{GENERATOR_VERSION}{tag}-seed{seed}"
+    return cache_home() / f"synthetic-v{GENERATOR_VERSION}{tag}-seed{seed}"
 
 
 def marker(seed: int, sequence: str, n_frames: int, style: str = "default") -> dict[str, Any]:
@@ -95,7 +97,7 @@ def generate(
     workers: int | None = None,
     style: str = "default",
 ) -> Path:
-    """Generate (or reuse) all three splits under root (default ~/.cache/i2pbench/synthetic-v{version}-seed{seed},
+    """Generate (or reuse) all three splits under root (default <cache>/synthetic-v{version}-seed{seed},
     with `-{style}` before `-seed` for a style other than the default)."""
     get_style(style)
     root = Path(root).expanduser() if root else default_root(seed, style)
@@ -110,7 +112,7 @@ class SyntheticStreets(Dataset):
     name = "synthetic"
     splits = ("train", "val", "test")
     default_conf: ClassVar[dict[str, Any]] = {
-        "root": None,  # None: ~/.cache/i2pbench/synthetic-v{version}[-{style}]-seed{seed} (or I2PBENCH_SYNTHETIC_ROOT)
+        "root": None,  # None: <cache>/synthetic-v{version}[-{style}]-seed{seed} (or I2PBENCH_SYNTHETIC_ROOT)
         "seed": 0,  # scene seed; every frame is a function of (seed, sequence, index)
         "frames": {"train": 400, "val": 20, "test": 40},  # frames per split (missing keys keep the defaults)
         "workers": None,  # processes for generation; None = all cores

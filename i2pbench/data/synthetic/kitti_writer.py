@@ -1,38 +1,44 @@
 """Writes synthetic frames in the KITTI Odometry layout: sequences/NN/{velodyne/NNNNNN.bin, image_2/NNNNNN.png,
 calib.txt}. Each frame is an independent scene seeded by (seed, sequence, index), so frames can be produced in any
-order, by any number of processes, with byte-identical results.
+order, by any number of processes, with byte-identical results; they are made in pinned processes (pinned.py), so
+the bytes are the same on every machine too.
 """
 
 from __future__ import annotations
 
-import multiprocessing
 import os
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from ...progress import bar
+from . import pinned
 from .camera import render
 from .lidar import scan
 from .raycast import Caster
 from .rig import calib_text, camera2, hdl64, on_uneven_road
 from .scene import build_scene
 from .style import DEFAULT, Style, style_rng
-from .version import GENERATOR_VERSION
+from .version import SCENE_DRAWS
 
 
 def frame_rng(seed: int, sequence: str, index: int) -> np.random.Generator:
-    return np.random.default_rng([GENERATOR_VERSION, int(seed), int(sequence), int(index)])
+    return np.random.default_rng([SCENE_DRAWS, int(seed), int(sequence), int(index)])
 
 
-def simulate(
+def simulate(seed: int, sequence: str, index: int, style: Style = DEFAULT) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(points [N x 4] float32, ring [N] int16, image [H x W x 3] uint8 RGB) of one frame, made in a pinned process:
+    the bytes written to the dataset's files."""
+    return pinned.run(simulate_here, [(seed, sequence, index, 0, style)])[0]
+
+
+def simulate_here(
     seed: int, sequence: str, index: int, nthreads: int = 0, style: Style = DEFAULT
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(points [N x 4] float32, ring [N] int16, image [H x W x 3] uint8 RGB) of one frame."""
+    """`simulate` in this process, with whatever kernels its CPU and environment select (what a pinned worker runs)."""
     rng = frame_rng(seed, sequence, index)
-    extra = style_rng(style, GENERATOR_VERSION, seed, int(sequence), index)
+    extra = style_rng(style, SCENE_DRAWS, seed, int(sequence), index)
     caster = Caster(build_scene(rng, style, extra), nthreads=nthreads)
     lidar = on_uneven_road(hdl64(), rng)
     points, ring, _ = scan(caster, lidar, rng, style)
@@ -40,9 +46,10 @@ def simulate(
 
 
 def write_frame(sequence_dir: Path, seed: int, index: int, nthreads: int = 0, style: Style = DEFAULT) -> None:
-    """Simulate and write frame `index` of the sequence directory (named by its two-digit sequence number)."""
+    """Simulate and write frame `index` of the sequence directory (named by its two-digit sequence number), in this
+    process (a pinned worker's job)."""
     sequence_dir = Path(sequence_dir)
-    points, _, image = simulate(seed, sequence_dir.name, index, nthreads, style)
+    points, _, image = simulate_here(seed, sequence_dir.name, index, nthreads, style)
     stem = f"{index:06d}"
     points.astype("<f4").tofile(sequence_dir / "velodyne" / f"{stem}.bin")
     if not cv2.imwrite(str(sequence_dir / "image_2" / f"{stem}.png"), image[:, :, ::-1]):
@@ -52,26 +59,17 @@ def write_frame(sequence_dir: Path, seed: int, index: int, nthreads: int = 0, st
 def write_sequence(
     sequence_dir: Path, n_frames: int, seed: int, workers: int | None = None, style: Style = DEFAULT
 ) -> None:
-    """All frames of one sequence plus its calib.txt; frames are spread over `workers` processes."""
+    """All frames of one sequence plus its calib.txt; frames are spread over `workers` pinned processes (one ray
+    caster thread each when there are several)."""
     sequence_dir = Path(sequence_dir)
     for sub in ("velodyne", "image_2"):
         (sequence_dir / sub).mkdir(parents=True, exist_ok=True)
     (sequence_dir / "calib.txt").write_text(calib_text())
-    workers = min(workers or os.cpu_count() or 1, n_frames)
+    workers = max(1, min(workers or os.cpu_count() or 1, n_frames))
+    nthreads = 0 if workers == 1 else 1
+    calls = [(sequence_dir, seed, index, nthreads, style) for index in range(n_frames)]
     with bar(n_frames, f"synthesising {sequence_dir.name}") as progress:
-        if workers <= 1:
-            for index in range(n_frames):
-                write_frame(sequence_dir, seed, index, style=style)
-                progress.update()
-            return
-        # forkserver: workers start from a clean process (no inherited ray-caster threads) and import once.
-        ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload([__name__])
-        with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-            jobs = [pool.submit(write_frame, sequence_dir, seed, index, 1, style) for index in range(n_frames)]
-            for job in jobs:
-                job.result()
-                progress.update()
+        pinned.run(write_frame, calls, workers, progress.update)
 
 
 def generate_kitti(

@@ -18,12 +18,13 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from . import pinned
 from .camera import render
 from .lidar import scan
 from .raycast import Caster
 from .rig import Camera, Lidar, on_uneven_road
 from .scene import build_scene
-from .version import GENERATOR_VERSION
+from .version import GENERATOR_VERSION, SCENE_DRAWS
 
 MINI_TRAIN = [
     "scene-0061",
@@ -84,8 +85,9 @@ def rig() -> tuple[Lidar, Camera]:
 
 
 def simulate(seed: int, scene: int, sample: int) -> tuple[np.ndarray, np.ndarray]:
-    """([N x 5] float32 sweep in nuScenes' .pcd.bin layout, [900 x 1600 x 3] uint8 RGB) of one sample."""
-    rng = np.random.default_rng([GENERATOR_VERSION, int(seed), 1_000_000 + scene, sample])
+    """([N x 5] float32 sweep in nuScenes' .pcd.bin layout, [900 x 1600 x 3] uint8 RGB) of one sample, made in this
+    process (`generate_nuscenes` runs it in pinned workers)."""
+    rng = np.random.default_rng([SCENE_DRAWS, int(seed), 1_000_000 + scene, sample])
     caster = Caster(build_scene(rng))
     lidar, camera = rig()
     lidar = on_uneven_road(lidar, rng)
@@ -103,9 +105,11 @@ def generate_nuscenes(
     dataroot = Path(dataroot)
     tables = _static_tables(dataroot, seed)
     names = [n for pair in zip(MINI_TRAIN, MINI_VAL + [None] * 6, strict=True) for n in pair if n]
+    calls = [(seed, i, k) for i in range(n_scenes) for k in range(samples_per_scene)]
+    made = dict(zip([call[1:] for call in calls], pinned.run(simulate, calls), strict=True))
     for i in range(n_scenes):
         name = names[i] if i < len(names) else f"scene-synthetic-{i:04d}"
-        _write_scene(dataroot, tables, seed, i, name, samples_per_scene)
+        _write_scene(dataroot, tables, seed, i, name, [made[i, k] for k in range(samples_per_scene)])
     (dataroot / version).mkdir(parents=True, exist_ok=True)
     for name, records in tables.items():
         (dataroot / version / f"{name}.json").write_text(json.dumps(records, indent=1))
@@ -155,7 +159,9 @@ def _static_tables(dataroot: Path, seed: int) -> dict[str, list[dict]]:
     }
 
 
-def _write_scene(dataroot: Path, tables: dict, seed: int, scene: int, name: str, n_samples: int) -> None:
+def _write_scene(dataroot: Path, tables: dict, seed: int, scene: int, name: str, frames: list[tuple]) -> None:
+    """One scene's tables and files; `frames` holds each sample's (sweep, image)."""
+    n_samples = len(frames)
     samples = [_token(seed, "sample", scene, k) for k in range(n_samples)]
     tables["scene"].append(
         {
@@ -179,7 +185,7 @@ def _write_scene(dataroot: Path, tables: dict, seed: int, scene: int, name: str,
                 "next": samples[k + 1] if k + 1 < n_samples else "",
             }
         )
-        sweep, image = simulate(seed, scene, k)
+        sweep, image = frames[k]
         pose = {"rotation": [1.0, 0.0, 0.0, 0.0], "translation": [600.0 + 10.0 * k, 1600.0 + 100.0 * scene, 0.0]}
         for channel, ext in (("LIDAR_TOP", "pcd.bin"), ("CAM_FRONT", "jpg")):
             filename = f"samples/{channel}/synthetic__{channel}__{stamp}.{ext}"

@@ -69,9 +69,25 @@ def hdl64() -> Lidar:
     return Lidar(elevations_deg=np.concatenate([upper, lower]), pose=pose)
 
 
-def _orthonormal(R: np.ndarray) -> np.ndarray:
-    u, _, vt = np.linalg.svd(R)
-    return u @ vt
+def _orthonormal(R: list[list[float]]) -> list[list[float]]:
+    """The nearest rotation (the polar factor, what an SVD's U @ Vt gives) by Newton's iteration X <- (X + X^-T) / 2,
+    in Python floats: each operation is one IEEE rounding on every machine, where LAPACK's SVD rounds by CPU (it moved
+    calib.txt's 13th digit between OpenBLAS's kernels)."""
+    X = [list(map(float, row)) for row in R]
+    for _ in range(100):
+        cof = [[_cofactor(X, i, j) for j in range(3)] for i in range(3)]
+        det = X[0][0] * cof[0][0] + X[0][1] * cof[0][1] + X[0][2] * cof[0][2]
+        nxt = [[(X[i][j] + cof[i][j] / det) / 2 for j in range(3)] for i in range(3)]
+        if nxt == X:
+            break
+        X = nxt
+    return X
+
+
+def _cofactor(X: list[list[float]], i: int, j: int) -> float:
+    r, c = [k for k in range(3) if k != i], [k for k in range(3) if k != j]
+    minor = X[r[0]][c[0]] * X[r[1]][c[1]] - X[r[0]][c[1]] * X[r[1]][c[0]]
+    return minor if (i + j) % 2 == 0 else -minor
 
 
 def calib_text() -> str:
@@ -81,7 +97,7 @@ def calib_text() -> str:
     for name, last in _P_LAST_COLUMN.items():
         lines.append(_line(name, np.concatenate([K, np.array(last)[:, None]], axis=1)))
     tr = np.array(_TR)
-    tr[:, :3] = _orthonormal(tr[:, :3])
+    tr[:, :3] = _orthonormal([row[:3] for row in _TR])
     lines.append(_line("Tr", tr))
     return "\n".join(lines) + "\n"
 
