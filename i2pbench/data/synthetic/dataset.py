@@ -52,10 +52,11 @@ def ensure_sequence(
     target = Path(root) / "sequences" / sequence
     wanted = marker(seed, sequence, n_frames, style)
     look = get_style(style)
-    if (target / MARKER).is_file():
-        found = json.loads((target / MARKER).read_text())
-        if found == wanted:
-            return target
+    found = json.loads((target / MARKER).read_text()) if (target / MARKER).is_file() else None
+    if found == wanted:
+        return target
+    refuse_foreign_root(Path(root))
+    if found is not None:
         if found.get("style", "default") != style:
             raise DataError(
                 f"{target} holds synthetic style {found.get('style', 'default')!r}, not {style!r}; not replacing it "
@@ -79,6 +80,32 @@ def ensure_sequence(
     finally:
         shutil.rmtree(tmp.parent, ignore_errors=True)
     return target
+
+
+def refuse_foreign_root(root: Path) -> None:
+    """Generating writes only into a folder that is empty or holds only what the generator made, so a root given
+    for real data (a KITTI copy, a nuScenes dataroot) under the synthetic dataset is refused, never written into."""
+    if not root.is_dir():
+        return
+    foreign = [p for p in sorted(root.iterdir()) if not p.name.startswith(".") and p.name != "sequences"]
+    sequences = root / "sequences"
+    if sequences.is_dir():
+        foreign += [p for p in sorted(sequences.iterdir()) if not p.name.startswith(".") and not (p / MARKER).is_file()]
+    if foreign:
+        names = ", ".join(str(p.relative_to(root)) for p in foreign[:4]) + (", ..." if len(foreign) > 4 else "")
+        raise DataError(
+            f"synthetic dataset root {root} holds data not made by the synthetic generator ({_looks_like(root)}: "
+            f"{names}); not writing into it. To read it, name its dataset (--dataset kitti / nuscenes); to "
+            "generate, give an empty or new folder"
+        )
+
+
+def _looks_like(root: Path) -> str:
+    if any(p.name.startswith("v1.0-") for p in root.iterdir()) or (root / "samples").is_dir():
+        return "it looks like a nuScenes dataroot"
+    if any((p / "velodyne").is_dir() or (p / "calib.txt").is_file() for p in root.glob("sequences/*")):
+        return "it looks like KITTI Odometry"
+    return "files without the generator's marker"
 
 
 def _retire(target: Path) -> None:
