@@ -35,7 +35,8 @@ def test_by_default_the_leaderboard_goes_under_runs_not_into_the_committed_leade
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     boards = tmp_path / "runs" / "leaderboards"
-    assert sorted(p.name for p in boards.iterdir()) == ["kitti-all.csv", "kitti-all.md", "kitti-all.parquet"]
+    written = ["kitti-all.csv", "kitti-all.env.json", "kitti-all.md", "kitti-all.parquet"]
+    assert sorted(p.name for p in boards.iterdir()) == written
     assert pd.read_csv(boards / "kitti-all.csv").iloc[0]["frames"] == 2
     assert not (tmp_path / "leaderboards").exists()
     assert f"written: {Path('runs/leaderboards/kitti-all.csv')}" in done.stderr

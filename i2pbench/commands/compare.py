@@ -1,10 +1,13 @@
 """`i2pbench compare NEW BASELINE`: the regression gate; exits 1 when a baseline row regresses or disappears, 2 when
 it cannot judge (a table that is missing, empty, header-only or malformed), so CI tells a broken gate from a regression.
+It warns on stderr, without failing, when the boards' records (`<stem>.env.json`) name other package or synthetic
+generator versions, or are missing.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 
 EXIT_CODES = "exit status: 0 no regression; 1 a baseline row regressed or is missing; 2 the gate could not run (a "
 EXIT_CODES += "table missing, empty, header-only, binary, ragged or not a leaderboard; a bad --tolerance)"
@@ -31,9 +34,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Errors are I2PBenchErrors, which the CLI prints on one line and turns into exit status 2."""
     from ..compare import compare, format_report, parse_tolerances, read_board
+    from ..runs.board_env import warnings
 
     tolerances = parse_tolerances(args.tolerance)
     new, base = read_board(args.new, "new leaderboard"), read_board(args.baseline, "baseline")
     report = compare(new, base, tolerances, names=(f"new leaderboard {args.new}", f"baseline {args.baseline}"))
+    for line in warnings((args.new, new), (args.baseline, base)):  # once both are judged leaderboards
+        print(f"i2pbench: warning: {line}", file=sys.stderr)
     print(format_report(report))
     return 0 if report.ok else 1

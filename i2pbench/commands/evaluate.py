@@ -37,6 +37,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import leaderboard
     from ..errors import I2PBenchError
+    from ..runs import board_env
     from ..runs.evaluate import evaluate
 
     thresholds = {field: getattr(args, field) for field, *_ in THRESHOLDS.values()}
@@ -50,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         try:
             paths = leaderboard.write(result.board, Path(args.out))
+            paths.append(board_env.write(Path(args.out), args.run_dir, result.records))
         except OSError as exc:
             raise I2PBenchError(f"--out {args.out}: could not write the leaderboard ({exc.strerror or exc})") from None
         print(f"written: {', '.join(str(path) for path in paths)}", file=sys.stderr)

@@ -207,7 +207,7 @@ def run(args: argparse.Namespace) -> int:
     print(leaderboard.to_markdown(board))  # first: a leaderboard that cannot be written is still seen
     summary = _robustness(registry, board)
     stem = Path(args.out or Path(args.runs_dir) / "leaderboards" / name)
-    paths = _write_board(board, stem, store.root, summary)
+    paths = _write_board(board, records, stem, store.root, summary)
     print(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store.root}", file=sys.stderr)
     return 0
 
@@ -252,14 +252,15 @@ def _open_store(root: Path):
         ) from None
 
 
-def _write_board(board, stem: Path, store_root: Path, summary=None) -> list[Path]:
-    """The leaderboard's files (and the robustness summary's, `<stem>-robustness`); an unwritable folder is an error
-    that says nothing computed is lost."""
+def _write_board(board, records, stem: Path, store_root: Path, summary=None) -> list[Path]:
+    """The leaderboard's files with the environment record of the invocations whose frames it holds (and the
+    robustness summary's, `<stem>-robustness`); an unwritable folder is an error that says nothing computed is lost."""
     from .. import leaderboard
     from ..errors import I2PBenchError
+    from ..runs import board_env
 
     try:
-        paths = leaderboard.write(board, stem)
+        paths = [*leaderboard.write(board, stem), board_env.write(stem, store_root, records)]
         if summary is not None:
             paths += leaderboard.write_robustness(summary, stem.with_name(f"{stem.name}-robustness"))
         return paths

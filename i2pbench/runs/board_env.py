@@ -1,0 +1,125 @@
+"""Which software made a leaderboard, kept beside it as `<stem>.env.json`, and how two boards' versions differ.
+
+A board's rows come from the invocations whose frames it holds (a rerun reuses cached frames), so the record lists
+each of them: its id, environment (package versions, python, git commit, machine) and dataset identity (a synthetic
+one names its generator_version). A board written before these records existed is traced to its run's store when it
+sits where `i2pbench run` puts it by default (`<runs>/leaderboards/<name>.csv` beside `<runs>/<name>/`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pyarrow.parquet as pq
+
+from ..leaderboard import GROUP
+from .invocation import history
+
+SUFFIX = ".env.json"
+GENERATOR = "generator_version"  # of the synthetic dataset, in its identity
+
+
+def record(store_root: str | Path, invocation_ids: Iterable[str]) -> dict[str, Any]:
+    """The environment and dataset identity of each named invocation the store recorded, oldest first."""
+    ids = set(invocation_ids)
+    runs = [m for m in history(store_root) if m.get("id") in ids]
+    keep = ("id", "environment", "dataset")
+    return {"store": str(store_root), "invocations": [{k: m.get(k, {}) for k in keep} for m in runs]}
+
+
+def path_for(board: str | Path) -> Path:
+    """The record's file beside a board file or stem (`x.csv`, `x.parquet` and `x` all give `x.env.json`)."""
+    board = Path(board)
+    stem = board.stem if board.suffix in (".csv", ".parquet") else board.name
+    return board.with_name(stem + SUFFIX)
+
+
+def write(stem: str | Path, store_root: str | Path, records: pd.DataFrame) -> Path:
+    """`<stem>.env.json` for a board built from `records`, written atomically."""
+    ids = records["invocation"].dropna().unique() if "invocation" in records else []
+    path = path_for(stem)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(record(store_root, ids), indent=2, default=str) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def read(board_path: str | Path, board: pd.DataFrame) -> dict[str, Any] | None:
+    """The board's record: its `.env.json` file, else its run's store in the default layout, else None."""
+    board_path = Path(board_path)
+    sidecar = path_for(board_path)
+    if sidecar.is_file():
+        try:
+            return json.loads(sidecar.read_text())
+        except (OSError, ValueError):
+            return None
+    store = board_path.parent.parent / board_path.stem
+    if board_path.parent.name != "leaderboards" or not (store / "invocations").is_dir():
+        return None
+    found = record(store, _invocations_of(store, board))
+    return found if found["invocations"] else None
+
+
+def _invocations_of(store: Path, board: pd.DataFrame) -> set[str]:
+    """The invocations that computed the store's records of the board's rows, read without touching the store."""
+    wanted = set(board[GROUP].astype(str).itertuples(index=False, name=None)) if set(GROUP) <= set(board) else set()
+    ids = set()
+    for path in (store / "frames").glob("*.parquet"):
+        try:
+            row = pq.read_table(path, columns=[*GROUP, "invocation"]).to_pylist()[0]
+        except Exception:  # unreadable, or written before records named their invocation: nothing to trace
+            continue
+        if tuple(str(row[k]) for k in GROUP) in wanted and row["invocation"]:
+            ids.add(row["invocation"])
+    return ids
+
+
+def versions(rec: dict[str, Any]) -> dict[str, set[str]]:
+    """name -> the versions of it that the record's invocations ran: each package, python, the generator."""
+    found: dict[str, set[str]] = {}
+    for inv in rec.get("invocations", []):
+        env, dataset = inv.get("environment") or {}, inv.get("dataset") or {}
+        named = {**(env.get("packages") or {}), "python": env.get("python"), GENERATOR: dataset.get(GENERATOR)}
+        for name, version in named.items():
+            if version is not None:
+                found.setdefault(name, set()).add(str(version))
+    return found
+
+
+def differences(new: dict[str, Any], base: dict[str, Any]) -> list[tuple[str, set[str], set[str]]]:
+    """(name, new versions, baseline versions) for everything both records name at other versions."""
+    a, b = versions(new), versions(base)
+    return [(name, a[name], b[name]) for name in a if name in b and a[name] != b[name]]
+
+
+def warnings(new: tuple[str | Path, pd.DataFrame], base: tuple[str | Path, pd.DataFrame]) -> list[str]:
+    """Lines for `i2pbench compare`: each version that differs between the boards, or whose records are missing."""
+    records = {"new leaderboard": (new[0], read(*new)), "baseline": (base[0], read(*base))}
+    unknown = [
+        f"{role} {path} has no environment record ({path_for(path).name} beside it, or its run's store): its package "
+        "and generator versions are unknown, so a difference in them would go unnoticed"
+        for role, (path, rec) in records.items()
+        if rec is None
+    ]
+    if unknown:
+        return unknown
+    return [
+        f"the boards come from different {_what(name)}: {_shown(n)} (new) vs {_shown(b)} (baseline); a difference "
+        "in results may come from it, not from the code"
+        for name, n, b in differences(records["new leaderboard"][1], records["baseline"][1])
+    ]
+
+
+def _what(name: str) -> str:
+    if name == GENERATOR:
+        return f"synthetic generator versions ({GENERATOR})"
+    return "python versions" if name == "python" else f"{name} versions"
+
+
+def _shown(values: set[str]) -> str:
+    return ", ".join(sorted(values))
