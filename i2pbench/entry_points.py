@@ -1,12 +1,13 @@
 """The entry points of a group, found with importlib.metadata once per change of the installed distributions.
 
 Finding them costs ~30 ms a start, a third of `i2pbench plugins`: importing importlib.metadata loads the email
-package, then it reads every installed distribution. So what it finds is kept in ~/.cache/i2pbench (a file per
-interpreter) with a fingerprint of what it read: the `.dist-info` and `.egg-info` folders in the folders on
-sys.path (installing or removing a distribution adds or removes one), the time and size of their entry points and
-metadata (a reinstall in place rewrites them), and the time and size of each sys.path entry that is no folder (a
-zip). A start with the stored fingerprint reads the file (~3 ms); any other finds the entry points anew and
-stores them. A cache that cannot be written costs only that; deleting it is always safe.
+package, then it reads every installed distribution. So what it finds is kept in the cache folder (`i2pbench.paths`:
+$XDG_CACHE_HOME/i2pbench, else ~/.cache/i2pbench; a file per interpreter) with a fingerprint of what it read: the
+`.dist-info` and `.egg-info` folders in the folders on sys.path (installing or removing a distribution adds or
+removes one), the time and size of their entry points and metadata (a reinstall in place rewrites them), and the
+time and size of each sys.path entry that is no folder (a zip). A start with the stored fingerprint reads the file
+(~3 ms); any other finds the entry points anew and stores them. A cache that cannot be written costs only that;
+deleting it is always safe.
 """
 
 from __future__ import annotations
@@ -21,10 +22,11 @@ import zlib
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
+from .paths import cache_home
+
 if TYPE_CHECKING:
     from importlib.metadata import Distribution
 
-CACHE = "~/.cache/i2pbench"
 METADATA_FILE = {".dist-info": "METADATA", ".egg-info": "PKG-INFO"}  # a distribution folder's name and version
 # an object reference, `module` or `module:attr.attr`, and the extras old distributions add (as importlib.metadata)
 REFERENCE = re.compile(r"(?P<module>[\w.]+)\s*(:\s*(?P<attr>[\w.]+)\s*)?((?P<extras>\[.*\])\s*)?$")
@@ -50,8 +52,8 @@ class EntryPoint:
 
 def installed(group: str) -> list[EntryPoint]:
     """The entry points of `group` in the installed distributions, as importlib.metadata finds them."""
-    folder = os.path.expanduser(CACHE)
-    if folder.startswith("~"):  # no home folder to keep them in
+    folder = str(cache_home())
+    if folder.startswith("~"):  # no home folder to keep them in (and no absolute XDG_CACHE_HOME)
         return _find(group)
     path = os.path.join(folder, f"entry-points-{zlib.crc32(sys.executable.encode()):08x}.json")
     fingerprint = [sys.version, group, *_fingerprint()]

@@ -19,6 +19,7 @@ GROUP = "i2pbench"
 def scans(tmp_path, monkeypatch):
     """The cache in a fresh home, and a list that grows by one each time the entry points are found anew."""
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)  # else the cache would not move with HOME
     calls = []
     real = entry_points._find
 
@@ -76,6 +77,30 @@ def test_a_cache_that_cannot_be_written_or_read_costs_only_the_scan(tmp_path, mo
     cache.write_text("{not json")
     assert _found() == _truth()
     assert len(scans) == 3 and os.listdir(cache.parent) == [cache.name]  # rewritten whole, no temporary left
+
+
+def test_xdg_cache_home_moves_the_cache_and_a_relative_one_is_ignored(tmp_path, monkeypatch, scans):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert _found() == _truth() and _found() == _truth()
+    assert len(scans) == 1  # the second `_found` read the cache, from the XDG folder
+    (cache,) = (tmp_path / "xdg" / "i2pbench").iterdir()
+    assert cache.name.startswith("entry-points-") and not (tmp_path / "home").exists()
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("XDG_CACHE_HOME", "relative")  # not absolute: the XDG rule says ignore it
+    installed(GROUP)
+    assert len(scans) == 2 and (tmp_path / "home" / ".cache" / "i2pbench").is_dir()
+    assert not (tmp_path / "relative").exists()
+
+
+def test_without_a_home_folder_the_cache_is_skipped_unless_xdg_cache_home_names_one(tmp_path, monkeypatch, scans):
+    monkeypatch.delenv("HOME")
+    monkeypatch.setattr(os.path, "expanduser", lambda path: path)  # as when neither HOME nor a passwd entry exists
+    assert _found() == _truth() and _found() == _truth()
+    assert len(scans) == 2  # nowhere to keep them: found anew each time
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    installed(GROUP)
+    installed(GROUP)
+    assert len(scans) == 3 and len(list((tmp_path / "xdg" / "i2pbench").iterdir())) == 1
 
 
 @pytest.mark.parametrize(
