@@ -3,13 +3,15 @@ already made (real data, shipped weights, finished frames) is overwritten or los
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import pytest
-from test_cli_errors import assert_refused, i2pbench
+from test_cli_errors import ROOT, assert_refused, i2pbench
 
+from i2pbench.commands.train import check_out
 from i2pbench.data.synthetic.dataset import SyntheticStreets
-from i2pbench.errors import DataError
+from i2pbench.errors import DataError, WeightsError
 
 
 def _tree(root: Path) -> dict[str, int]:
@@ -61,3 +63,35 @@ def test_a_synthetic_root_the_generator_made_is_still_extended(tmp_path):
     SyntheticStreets("val", conf).frame_ids()
     assert SyntheticStreets("test", conf).frame_ids() == ["02/000000"]
     assert sorted(p.name for p in (root / "sequences").iterdir()) == ["01", "02"]
+
+
+SHIPPED = ROOT / "plugins" / "edgeregnet" / "i2pbench_edgeregnet" / "weights" / "edgeregnet-cpu-synthetic.pt"
+
+
+def test_train_refuses_to_write_into_the_installed_package(tmp_path):
+    before = SHIPPED.read_bytes()
+    siblings = sorted(p.name for p in SHIPPED.parent.iterdir())
+    done = i2pbench("train", "--out", str(SHIPPED), "--steps", "1", "--force", cwd=tmp_path)
+    assert_refused(done, f"--out {SHIPPED}", "inside the installed package")
+    assert SHIPPED.read_bytes() == before
+    assert sorted(p.name for p in SHIPPED.parent.iterdir()) == siblings  # no .resume, .log.jsonl or probe left
+
+
+def test_train_never_overwrites_a_checkpoint_without_force(tmp_path):
+    copy = tmp_path / "mine.pt"
+    shutil.copyfile(SHIPPED, copy)
+    done = i2pbench("train", "--out", str(copy), "--steps", "1", cwd=tmp_path)
+    assert_refused(done, f"--out {copy}", "existing checkpoint", "--force")
+    assert copy.read_bytes() == SHIPPED.read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.pt"]
+
+
+def test_train_resumes_its_own_checkpoint_and_continues_a_copy_only_with_force(tmp_path):
+    copy = tmp_path / "mine.pt"
+    shutil.copyfile(SHIPPED, copy)
+    check_out(copy, force=True)  # a copy to fine-tune, said explicitly
+    copy.with_name("mine.pt.resume").write_bytes(b"")  # a training of ours in progress: resumed without --force
+    check_out(copy, force=False)
+    check_out(tmp_path / "new.pt", force=False)
+    with pytest.raises(WeightsError, match="is a folder"):
+        check_out(tmp_path, force=True)
