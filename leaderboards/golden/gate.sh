@@ -13,7 +13,8 @@ TOLERANCE=acc=-2,rte=+0.05,rre=+0.2,latency=x10
 # keep the classic rows' slack.
 LEARNED_TOLERANCE=acc=-0,failures=+0,rte=+0.05,rre=+0.2,latency=x10
 KITTI_ROOT=${I2PBENCH_KITTI_ROOT:-../shared/data/kitti_odometry}
-SYNTHETIC_ROOT=${XDG_CACHE_HOME:-$HOME/.cache}/i2pbench/gate-synthetic  # 6 frames, made once, kept across runs
+case "${XDG_CACHE_HOME:-}" in /*) CACHE=$XDG_CACHE_HOME ;; *) CACHE=$HOME/.cache ;; esac  # as i2pbench.paths
+SYNTHETIC_ROOT=$CACHE/i2pbench/gate-synthetic  # 6 frames, made once, kept across runs
 SYNTHETIC=(--dataset synthetic --split test --data-root "$SYNTHETIC_ROOT" --data-conf frames.test=6)
 MODE=${1:-compare}
 work=$(mktemp -d)
@@ -24,7 +25,7 @@ run() {  # NAME TOLERANCE, then the run options
     shift 2
     .venv/bin/i2pbench run --runs-dir "$work/runs" --out "$work/$name" --threads 1 --quiet "$@" >/dev/null
     if [ "$MODE" = --update ]; then
-        cp "$work/$name.csv" "$work/$name.md" "$GOLDEN/"
+        cp "$work/$name.csv" "$work/$name.md" "$work/$name.env.json" "$GOLDEN/"  # env: the versions compare checks
     else
         echo "== $name"
         .venv/bin/i2pbench compare "$work/$name.csv" "$GOLDEN/$name.csv" --tolerance "$tolerance"
