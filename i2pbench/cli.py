@@ -29,6 +29,7 @@ COMMANDS = (
     "evaluate",
     "viz",
     "report",
+    "weights",
 )
 PIPELINE_COMMANDS = ("run", "train", "viz")  # those that build pipelines, which read the stage time limit
 # each command's one-line help, shown without importing its module (a command left out is imported to build --help);
@@ -45,6 +46,7 @@ SUMMARIES = {
     "evaluate": "recompute metrics and the leaderboard from a runs directory, no stage run",
     "viz": "draw one frame's LiDAR points under the initial, ground-truth and predicted poses",
     "report": "write a self-contained HTML report of a runs directory (e.g. runs/kitti-all)",
+    "weights": "import another code base's checkpoint as an i2pbench checkpoint",
 }
 
 

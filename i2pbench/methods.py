@@ -28,10 +28,11 @@ Confs = Mapping[str, Mapping[str, Any]]  # stage kind -> config overrides
 class Size:
     """One size of a method: configs for its own components, and pins that serve them.
 
-    `confs` apply where a row keeps the method's component at that kind (a swapped stage runs its own defaults);
+    `confs` apply where a row keeps the size's component at that kind (a swapped stage runs its own defaults);
     `pins` apply to whatever component a row puts at that kind (e.g. the keypoint count the learned stages were
-    sized for, given to any extractor of an ablation row). `variant` is the label rows at this size carry (None:
-    the size's name; "" for the reference size, whose rows carry none).
+    sized for, given to any extractor of an ablation row). `stages` names components this size runs instead of the
+    method's (a size whose layers differ in kind, not only in width: e.g. the authors' own network). `variant` is
+    the label rows at this size carry (None: the size's name; "" for the reference size, whose rows carry none).
     """
 
     name: str
@@ -39,6 +40,7 @@ class Size:
     pins: Confs = field(default_factory=dict)
     variant: str | None = None
     description: str = ""
+    stages: Mapping[str, str] = field(default_factory=dict)
 
     @property
     def label(self) -> str:
@@ -72,6 +74,9 @@ class Method:
     presets: tuple[MethodPreset, ...] = ()
     weights: tuple[str | Path, ...] = ()  # checkpoint files, offered to `--weights auto`
     description: str = ""
+    # `i2pbench weights import NAME FILE`: NAME -> "package.module:function", a function of the file's path returning
+    # i2pbench.weights.ImportedWeights (another code base's checkpoint mapped onto one of the sizes)
+    importers: Mapping[str, str] = field(default_factory=dict)
 
     def size(self, name: str) -> Size:
         for size in self.sizes:
@@ -85,9 +90,10 @@ class Method:
         unknown = set(swaps) - set(STAGE_ORDER)
         if unknown:
             raise PluginError(f"method {self.name!r}: a row swaps unknown stage kinds {sorted(unknown)}")
-        names = {**self.stages, **swaps}
         chosen = self.size(size)
-        own = {kind: conf for kind, conf in chosen.confs.items() if names.get(kind) == self.stages[kind]}
+        mine = {**self.stages, **chosen.stages}
+        names = {**mine, **swaps}
+        own = {kind: conf for kind, conf in chosen.confs.items() if names.get(kind) == mine[kind]}
         confs = copy.deepcopy({**own, **chosen.pins})
         return {**names, "confs": confs, "variant": chosen.label}
 
@@ -104,7 +110,11 @@ class Method:
         if not names or len(set(names)) != len(names):
             raise PluginError(f"method {self.name!r}: needs at least one size, each named once (got {names})")
         for size in self.sizes:
-            stray = set(size.confs) - set(self.stages) | set(size.pins) - set(STAGE_ORDER)
+            stray = (
+                set(size.confs) - set(self.stages)
+                | set(size.pins) - set(STAGE_ORDER)
+                | set(size.stages) - set(self.stages)
+            )
             if stray:
                 raise PluginError(f"method {self.name!r} size {size.name!r} configures kinds {sorted(stray)} it lacks")
         for preset in self.presets:
@@ -116,7 +126,13 @@ class Method:
             "name": self.name,
             "description": self.description,
             "stages": dict(self.stages),
-            "sizes": {s.name: {"variant": s.label, "description": s.description} for s in self.sizes},
+            "sizes": {s.name: _describe_size(s) for s in self.sizes},
             "presets": [p.name for p in self.presets],
             "weights": [Path(w).name for w in self.weights],
+            "importers": sorted(self.importers),
         }
+
+
+def _describe_size(size: Size) -> dict[str, Any]:
+    own = {"stages": dict(size.stages)} if size.stages else {}
+    return {"variant": size.label, "description": size.description, **own}

@@ -47,7 +47,9 @@ class Checkpoint:
         one frame say so (`4250 steps of 2 frames`), so rows trained on batches compare by frames seen."""
         batch = (self.meta.get("train_config") or {}).get("effective_batch") or 1
         steps = f"{self.meta.get('steps', '?')} steps" + (f" of {batch} frames" if batch > 1 else "")
-        here = f"{data_label(self.meta.get('trained_on', {}))}, {steps}"
+        here = data_label(self.meta.get("trained_on", {}))
+        if "steps" in self.meta or "release" not in self.meta.get("trained_on", {}):  # an import counts no steps
+            here += f", {steps}"
         earlier = [f"{data_label(d)} {d.get('steps', '?')}" for d in self.lineage]
         return " + ".join([*earlier, here])
 
@@ -65,8 +67,47 @@ def data_label(data: dict[str, Any]) -> str:
 
 
 def _source(data: dict[str, Any]) -> str:
+    if "release" in data:  # weights imported from another code base: who trained them, on what
+        return str(data["release"])
     style = f"[{data['style']}]" if data.get("style") else ""
     return f"{data.get('dataset', '?')}{style}/{data.get('split', '?')}"
+
+
+@dataclass(frozen=True)
+class ImportedWeights:
+    """What a method's importer (`Method.importers`) makes of another code base's checkpoint."""
+
+    size: str  # the method's size whose learned stages the state fills
+    state: dict[str, dict[str, torch.Tensor]]  # stage kind -> state dict, in the stages' own layout
+    trained_on: dict[str, Any]  # {"release": "who trained it on what"}, recorded as the checkpoint's training data
+    meta: dict[str, Any]  # anything else worth recording (the source's format)
+
+
+def import_weights(registry: Any, importer: str, source: str | Path, out: str | Path) -> Path:
+    """Run a method's importer on `source` and save its weights at `out` as a checkpoint of the importer's size,
+    recording the source file's name and sha256; a state that does not load exactly is refused."""
+    import importlib
+
+    from .grid import expand
+
+    owners = {name: m for m, _ in registry.methods.values() for name in m.importers}
+    if importer not in owners:
+        known = ", ".join(sorted(owners)) or "none"
+        raise WeightsError(f"unknown weights importer {importer!r} (known: {known})")
+    source = Path(source)
+    if not source.is_file():
+        raise WeightsError(f"{source} does not exist")
+    method = owners[importer]
+    module, _, function = method.importers[importer].partition(":")
+    imported = getattr(importlib.import_module(module), function)(source)
+    pipeline = Pipeline.build(registry, expand([method.row(imported.size)], {}, None, registry)[0], isolate="thread")
+    for kind, module_ in pipeline.learned_modules().items():
+        try:
+            module_.load_state_dict(imported.state[kind])
+        except (KeyError, RuntimeError) as exc:
+            raise WeightsError(f"{source}: the {importer} import does not load into {module_.label}: {exc}") from exc
+    origin = {"file": source.name, "sha256": file_digest(source), "importer": importer, **imported.meta}
+    return save_checkpoint(out, pipeline, trained_on=imported.trained_on, imported_from=origin)
 
 
 def file_digest(path: Path) -> str:

@@ -12,12 +12,12 @@ import toy_plugin
 
 from i2pbench.api import Method, MethodPreset, Row, Size, hookimpl
 from i2pbench.commands import plugins as plugins_command
-from i2pbench.errors import PluginError
+from i2pbench.errors import PluginError, WeightsError
 from i2pbench.grid import base_combinations, expand
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import build_registry
 from i2pbench.runs.runner import prepare
-from i2pbench.weights import load_checkpoint, mismatch, save_checkpoint
+from i2pbench.weights import file_digest, load_checkpoint, mismatch, save_checkpoint
 
 REFERENCE_ROW = "grid > first > linear > regress > truth"
 
@@ -71,6 +71,39 @@ def test_the_checkpoint_check_refuses_a_size_the_weights_were_not_trained_at(tmp
     assert reason == (
         "encoder2d: the pipeline has 'linear' {'dim': 4} but checkpoint toy-1.pt was trained with 'linear' {'dim': 2}"
     )
+
+
+def test_a_size_may_run_other_components_than_its_method(tmp_path):
+    method = Method("m", toy_method.STAGES, (Size("own", {"encoder2d": {"dim": 3}}, stages={"encoder2d": "constant"}),))
+    method.check()
+    row = method.row("own")
+    assert row["encoder2d"] == "constant" and row["confs"] == {"encoder2d": {"dim": 3}}
+    assert method.row("own", encoder2d="linear")["confs"] == {}  # a swapped stage leaves the size's confs behind
+    with pytest.raises(PluginError, match=r"configures kinds \['exchanger'\]"):
+        Method("m", toy_method.STAGES, (Size("bad", stages={"exchanger": "x"}),)).check()
+
+
+def test_a_methods_importer_writes_a_checkpoint_of_its_size_recording_the_source(tmp_path):
+    from i2pbench.weights import import_weights
+
+    source = tmp_path / "release.json"
+    source.write_text(json.dumps({"w": [[1.0, 2.0], [3.0, 4.0]], "b": [0.5, -0.5]}))
+    checkpoint = load_checkpoint(import_weights(_registry(), "toy-release", source, tmp_path / "W.pt"))
+    assert checkpoint.meta["stages"]["encoder2d"] == {"name": "linear", "conf": {"dim": 2}}
+    assert checkpoint.trained_on == "a toy release"
+    origin = checkpoint.meta["imported_from"]
+    assert origin == {
+        "file": "release.json",
+        "sha256": file_digest(source),
+        "importer": "toy-release",
+        "format": "json",
+    }
+    assert checkpoint.state["encoder2d"]["layer.bias"].tolist() == [0.5, -0.5]
+    source.write_text(json.dumps({"w": [[1.0, 2.0, 3.0]] * 2, "b": [0.5, -0.5]}))
+    with pytest.raises(WeightsError, match="(?s)does not load into encoder2d 'linear'.*size mismatch"):
+        import_weights(_registry(), "toy-release", source, tmp_path / "W2.pt")
+    with pytest.raises(WeightsError, match=r"unknown weights importer 'toy' \(known: toy-release\)"):
+        import_weights(_registry(), "toy", source, tmp_path / "W2.pt")
 
 
 def _listing(registry, monkeypatch, capsys, *options: str) -> str:
@@ -191,7 +224,12 @@ def test_edgeregnet_is_one_method_from_its_entry_point(monkeypatch):
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "classic,edgeregnet")
     registry = build_registry()
     method = registry.method("edgeregnet")
-    assert [s.name for s in method.sizes] == ["paper", "cpu-size"] and registry.methods["edgeregnet"][1] == "edgeregnet"
+    sizes = [s.name for s in method.sizes]
+    assert sizes == ["paper", "cpu-size", "official"] and registry.methods["edgeregnet"][1] == "edgeregnet"
     owned = {name for name, preset in registry.presets.items() if preset.method == "edgeregnet"}
-    assert owned == {"default", "edgeregnet-full", "edge-ablation", "exchange-ablation", "baselines"}
+    assert owned == {"default", "edgeregnet-full", "edgeregnet-official", "edge-ablation", "exchange-ablation",
+                     "baselines"}  # fmt: skip
+    official = registry.preset_rows("edgeregnet-official")[0]
+    assert official["encoder2d"] == "superpoint-official" and official["matcher"] == "match-assignment-official"
+    assert official["variant"] == "official" and official["confs"]["extractor2d"] == {"max_keypoints": 3000}
     assert [path for path, _ in registry.weights] == [str(w) for w in method.weights] and len(method.weights) == 2

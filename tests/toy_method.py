@@ -23,7 +23,23 @@ PRESETS = (
 
 
 def method(weights: tuple[Path, ...] = ()) -> Method:
-    return Method("toy", STAGES, (REFERENCE, TINY), PRESETS, weights, "a linear encoder trained by regression")
+    importers = {"toy-release": "toy_method:import_release"}
+    return Method(
+        "toy", STAGES, (REFERENCE, TINY), PRESETS, weights, "a linear encoder trained by regression", importers
+    )
+
+
+def import_release(path: Path):
+    """another code base's file: a JSON {"w": [[...] x 2] x 2, "b": [...] x 2}, our encoder at its tiny size."""
+    import json
+
+    import torch
+
+    from i2pbench.weights import ImportedWeights
+
+    data = json.loads(path.read_text())
+    state = {"encoder2d": {"layer.weight": torch.tensor(data["w"]), "layer.bias": torch.tensor(data["b"])}}
+    return ImportedWeights("tiny", state, {"release": "a toy release"}, {"format": "json"})
 
 
 class ToyMethodPlugin:

@@ -1,4 +1,5 @@
-"""Stage configs of EdgeRegNet's learned stages: the paper's size and a smaller one that trains on a CPU.
+"""Stage configs of EdgeRegNet's learned stages: the paper's size, a smaller one that trains on a CPU, and the
+components of the authors' own network (the `official` size).
 
 The small one also turns on the yaw-canonical frame for 3D inputs (canonical.py), our addition: without it the
 encoders must learn invariance to the protocol's random yaw from augmentation alone, which a CPU cannot afford.
@@ -15,6 +16,15 @@ COMPONENTS = {"encoder2d": "superpoint-cnn", "encoder3d": "pointnet2", "exchange
 FULL_KEYPOINTS = 3000
 SMALL_KEYPOINTS = 2048  # attention cost grows with the square of this; 2048 keeps a CPU training step near 2 s and
 # gives ~4x the ground-truth pairs of 1024 (about 50 per synthetic frame: only ~12% of a scan's edge points are in view)
+
+# the authors' network (official_*.py): other components, not other widths; 3000 edge pixels and points (test.py)
+OFFICIAL_COMPONENTS = {
+    "encoder2d": "superpoint-official",
+    "encoder3d": "pointnet2-official",
+    "exchanger": "attention-official",
+    "matcher": "match-assignment-official",
+}
+OFFICIAL_KEYPOINTS = 3000
 
 FULL: dict[str, dict[str, Any]] = {kind: {} for kind in COMPONENTS}
 

@@ -13,10 +13,14 @@ another row's weights.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from i2pbench.methods import Method, MethodPreset, Row, Size
 
-from .configs import COMPONENTS, FULL, SMALL, SMALL_KEYPOINTS
+from .configs import COMPONENTS, FULL, OFFICIAL_COMPONENTS, OFFICIAL_KEYPOINTS, SMALL, SMALL_KEYPOINTS
+
+if TYPE_CHECKING:
+    from i2pbench.learned import LearnedComponent
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 EDGES = {"extractor2d": "lsd", "extractor3d": "depth+reflectance"}
@@ -30,6 +34,14 @@ CPU = Size(
     SMALL,
     pins={kind: {"max_keypoints": SMALL_KEYPOINTS} for kind in EDGES},
     description=f"d=128, 3 blocks, {SMALL_KEYPOINTS} + {SMALL_KEYPOINTS} keypoints, yaw-canonical 3D (shipped weights)",
+)
+# the authors' network (docs/edgeregnet.md: paper text vs authors' code vs i2pbench); its weights are theirs, imported
+OFFICIAL = Size(
+    "official",
+    stages=OFFICIAL_COMPONENTS,
+    pins={kind: {"max_keypoints": OFFICIAL_KEYPOINTS} for kind in EDGES},
+    description="the authors' code exactly (ESRSchao/EdgeRegNet): tied SuperGlue attention, 9,789,922 values; "
+    "weights: i2pbench weights import edgeregnet-official KITTI.t7",
 )
 
 # Table III: (3D extractor, 2D extractor), in the paper's row order.
@@ -53,6 +65,11 @@ PRESETS = (
     ),
     MethodPreset(
         "edgeregnet-full", (Row("paper"),), "EdgeRegNet at the paper's size (d=256, 6 blocks, 3000 + 3000 keypoints)"
+    ),
+    MethodPreset(
+        "edgeregnet-official",
+        (Row("official"),),
+        "EdgeRegNet as the authors' code computes it (run with --weights from `i2pbench weights import`)",
     ),
     MethodPreset(
         "edge-ablation",
@@ -84,8 +101,20 @@ def edgeregnet() -> Method:
     return Method(
         "edgeregnet",
         {**EDGES, **COMPONENTS, **SOLVER},
-        (PAPER, CPU),
+        (PAPER, CPU, OFFICIAL),
         PRESETS,
         tuple(sorted(WEIGHTS_DIR.glob("*.pt"))),
         "edge pixels and points, CNN + PointNet++ encoders, attention exchange, optimal matching, EPnP",
+        importers={"edgeregnet-official": "i2pbench_edgeregnet.official_import:import_official"},
     )
+
+
+def official_stages() -> dict[str, LearnedComponent]:
+    """the official size's four learned stages at their defaults, built directly (no registry)."""
+    from .official_attention import OfficialAttention
+    from .official_matching import OfficialMatcher
+    from .official_pointnet2 import OfficialPointNet2
+    from .official_superpoint import OfficialSuperPoint
+
+    classes = (OfficialSuperPoint, OfficialPointNet2, OfficialAttention, OfficialMatcher)
+    return {kind: cls() for kind, cls in zip(COMPONENTS, classes, strict=True)}

@@ -1,0 +1,101 @@
+"""The authors' 2D branch (ESRSchao/EdgeRegNet, models/superpoint.py): SuperPoint's VGG on a fixed grey canvas, its
+descriptor head L2-normalised, sampled at the edge pixels as SuperGlue's `sample_descriptors` and normalised again.
+
+Preprocessing is the authors' data loader (KITTI_bin.py:104-110): the image turned grey as PIL's `convert("L")`
+(integer BT.601 weights, rounded), pasted at the top-left of a black 1250 x 376 canvas (a larger image is cropped),
+then `(x / 255 - 0.485) / 0.229`. The detector head (convPa, convPb) is kept so the authors' state dict and Magic
+Leap's `superpoint_v1.pth` load whole; the authors' forward computes keypoints from it that nothing reads, so it is
+not run here.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from i2pbench.api import Encoder2D, Frame, Keypoints2D, LearnedComponent
+
+VGG = (("conv1a", 1, 64), ("conv1b", 64, 64), ("conv2a", 64, 64), ("conv2b", 64, 64))
+VGG += (("conv3a", 64, 128), ("conv3b", 128, 128), ("conv4a", 128, 128), ("conv4b", 128, 128))
+HEADS = (("convPa", 128, 256, 3), ("convPb", 256, 65, 1), ("convDa", 128, 256, 3), ("convDb", 256, 256, 1))
+PIL_GREY = (19595, 38470, 7471)  # PIL's fixed-point BT.601 weights (x 2^16) of convert("L")
+
+
+def pil_grey(image: np.ndarray) -> np.ndarray:
+    """rgb uint8 [H x W x 3] -> grey uint8 [H x W], exactly as PIL's `Image.convert("L")`."""
+    rgb = image.astype(np.uint32)
+    r, g, b = PIL_GREY
+    return ((rgb[..., 0] * r + rgb[..., 1] * g + rgb[..., 2] * b + 0x8000) >> 16).astype(np.uint8)
+
+
+def canvas(grey: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """grey uint8 [H x W] pasted at the top-left of a black canvas of size (W, H), cropped where larger."""
+    width, height = size
+    out = np.zeros((height, width), np.uint8)
+    h, w = min(height, grey.shape[0]), min(width, grey.shape[1])
+    out[:h, :w] = grey[:h, :w]
+    return out
+
+
+def sample_descriptors(fmap: torch.Tensor, uv: torch.Tensor, s: int = 8) -> torch.Tensor:
+    """SuperGlue's lookup of fmap [B x D x Hc x Wc] at pixels uv [B x M x 2] -> L2-normalised [B x M x D].
+
+    Its mapping is kept as written: pixel x to (x - s/2 + 0.5) / (Wc s - s/2 - 0.5) * 2 - 1 with align_corners=True
+    and zero padding (not the cell-centre mapping of superpoint.py)."""
+    _, _, h, w = fmap.shape
+    scale = uv.new_tensor([w * s - s / 2 - 0.5, h * s - s / 2 - 0.5])
+    grid = (uv - s / 2 + 0.5) / scale * 2 - 1
+    out = F.grid_sample(fmap, grid[:, None], mode="bilinear", align_corners=True)[:, :, 0]
+    return F.normalize(out, p=2, dim=1).transpose(1, 2)
+
+
+class OfficialSuperPoint(LearnedComponent, Encoder2D):
+    """The authors' SuperPoint descriptors of edge pixels (module docstring)."""
+
+    name = "superpoint-official"
+    default_conf: dict[str, Any] = {
+        "descriptor_dim": 256,  # D (fixed by SuperPoint's head; declared for the compatibility check)
+        "canvas": (1250, 376),  # (W, H) of the black canvas the grey image is pasted on (KITTI_bin.py:106)
+        "mean": 0.485,  # transforms.Normalize (KITTI_bin.py:73)
+        "std": 0.229,
+    }
+    stride = 8
+
+    def __init__(self, conf: dict[str, Any] | None = None) -> None:
+        super().__init__(conf)
+        for name, cin, cout in VGG:
+            setattr(self, name, nn.Conv2d(cin, cout, 3, padding=1))
+        for name, cin, cout, k in HEADS:
+            setattr(self, name, nn.Conv2d(cin, cout, k, padding=k // 2))
+        self.to(memory_format=torch.channels_last)  # oneDNN then keeps activations NHWC (superpoint.py says why)
+
+    def prepare(
+        self, frame: Frame, kp2d: Keypoints2D, device: torch.device | str = "cpu", cache: dict | None = None
+    ) -> dict[str, torch.Tensor]:
+        """one frame's network inputs: the normalised canvas [1 x H x W] and the edge pixels [M x 2]."""
+        grey = canvas(pil_grey(frame.image), tuple(self.conf["canvas"]))
+        image = (torch.from_numpy(grey).float() / 255 - self.conf["mean"]) / self.conf["std"]
+        uv = torch.from_numpy(np.asarray(kp2d.uv, np.float32))
+        return {"image": image[None].to(device), "uv": uv.to(device)}
+
+    def __call__(self, frame: Frame, kp2d: Keypoints2D) -> torch.Tensor:
+        device = next(self.parameters()).device
+        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, device).items()}
+        return nn.Module.__call__(self, inputs)[0].float()
+
+    def dense(self, image: torch.Tensor) -> torch.Tensor:
+        """image [B x 1 x H x W] -> the descriptor map [B x D x H/8 x W/8], L2-normalised (superpoint.py:148-193)."""
+        x = image
+        for i, (name, _, _) in enumerate(VGG):
+            x = F.relu(getattr(self, name)(x))
+            if i in (1, 3, 5):
+                x = F.max_pool2d(x, 2, 2)
+        return F.normalize(self.convDb(F.relu(self.convDa(x))), p=2, dim=1)
+
+    def forward(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
+        """`prepare`d frames: image [B x 1 x H x W], uv [B x M x 2] -> descriptors [B x M x D]."""
+        return sample_descriptors(self.dense(inputs["image"]), inputs["uv"], self.stride)
