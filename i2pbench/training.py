@@ -184,6 +184,9 @@ class Trainer:
         """`mix`: datasets mixed into `train_set`, each with its share of the samples (training_mix.py)."""
         self.pipeline, self.train_set, self.val_set, self.out, self.config = pipeline, train_set, val_set, out, config
         self.mix = tuple(mix)
+        for name, value in (("lr", config.lr), ("grad_clip", config.grad_clip)):
+            if not (math.isfinite(value) and value > 0):
+                raise I2PBenchError(f"training {name} {value}: give a finite positive number")
         self.matcher = check_trainable(pipeline)
         self.dist = Distributed.from_env()
         self.device = pick_device(config.device)
@@ -213,6 +216,7 @@ class Trainer:
         self.best: float | None = None
         self.lineage: list[dict[str, Any]] = []  # earlier phases on other data (see Checkpoint.lineage)
         self.notes: list[str] = []
+        self.saved_step: int | None = None  # the step of the checkpoint on disk, None while there is none
 
     def sample(self, index: int) -> Frame:
         """sample index's frame and transform (a pure function of (seed, index))."""
@@ -230,7 +234,7 @@ class Trainer:
             raise WeightsError(f"cannot resume {self.out}: {reason}; choose another --out or delete it")
         for kind, module in self.pipeline.learned_modules().items():
             module.load_state_dict(checkpoint.state[kind])
-        self.step = int(checkpoint.meta.get("steps", 0))
+        self.step = self.saved_step = int(checkpoint.meta.get("steps", 0))
         self.seconds = float(checkpoint.meta.get("train_seconds", 0.0))
         self.validation = checkpoint.meta.get("validation", {})
         self.best = checkpoint.meta.get("best_acc")
@@ -358,6 +362,20 @@ class Trainer:
         tmp = _resume_path(self.out).with_suffix(".tmp")
         torch.save(state, tmp)
         os.replace(tmp, _resume_path(self.out))
+        self.saved_step = self.step
+
+    def check_finite(self, terms: dict[str, Any]) -> None:
+        """stop on a non-finite loss or weights (a too-large learning rate): nothing more is saved, so the
+        checkpoint on disk stays the last good one."""
+        loss = terms.get("loss", 0.0)
+        weights = torch.stack([p.detach().double().sum() for p in self.params]).sum() if self.params else None
+        if math.isfinite(loss) and (weights is None or bool(torch.isfinite(weights))):
+            return
+        what = f"the loss is {loss}" if not math.isfinite(loss) else "the weights are no longer finite"
+        kept = "nothing was saved" if self.saved_step is None else f"{self.out} keeps step {self.saved_step}"
+        raise I2PBenchError(
+            f"training stopped at step {self.step}: {what} (lr {self.config.lr:g}); {kept}. Lower --lr or --grad-clip"
+        )
 
     def _progress(self) -> dict[str, Any]:
         return {
@@ -396,6 +414,7 @@ class Trainer:
             waited = time.perf_counter() - start
             terms = self.train_step(model, micro)
             self.step += 1
+            self.check_finite(terms)
             elapsed = time.perf_counter() - start
             self.seconds += elapsed
             terms.update(lr=learning_rate(c, self.step - 1), data_wait=waited / max(elapsed, 1e-9))

@@ -7,11 +7,12 @@ import shutil
 from pathlib import Path
 
 import pytest
+import toy_plugin
 from test_cli_errors import ROOT, assert_refused, i2pbench
 
 from i2pbench.commands.train import check_out
 from i2pbench.data.synthetic.dataset import SyntheticStreets
-from i2pbench.errors import DataError, WeightsError
+from i2pbench.errors import DataError, I2PBenchError, WeightsError
 
 
 def _tree(root: Path) -> dict[str, int]:
@@ -95,3 +96,41 @@ def test_train_resumes_its_own_checkpoint_and_continues_a_copy_only_with_force(t
     check_out(tmp_path / "new.pt", force=False)
     with pytest.raises(WeightsError, match="is a folder"):
         check_out(tmp_path, force=True)
+
+
+@pytest.mark.parametrize("lr", ["inf", "nan", "-1", "0", "1e-4x"])
+def test_train_refuses_a_learning_rate_that_is_not_finite_and_positive(lr, tmp_path):
+    done = i2pbench("train", "--out", str(tmp_path / "w.pt"), "--lr", lr, cwd=tmp_path)
+    assert done.returncode == 2 and done.stderr.startswith("usage: i2pbench train")
+    assert_refused(done, "--lr", repr(lr), "finite positive")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_training_stops_on_exploding_weights_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch):
+    from test_weights_and_training import LEARNED, Clean
+
+    from i2pbench.pipeline import Combination, Pipeline
+    from i2pbench.plugins import build_registry
+    from i2pbench.training import TrainConfig, Trainer
+    from i2pbench.weights import load_checkpoint
+
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    registry = build_registry((toy_plugin,))
+
+    def trainer(lr: float, steps: int) -> Trainer:
+        pipeline = Pipeline.build(registry, Combination(LEARNED))
+        config = TrainConfig(steps=steps, lr=lr, checkpoint_every=2, validate_every=1000, seed=1)
+        return Trainer(pipeline, Clean("test"), None, tmp_path / "w.pt", config)
+
+    trainer(0.05, 2).run({})
+    good = (tmp_path / "w.pt").read_bytes()
+    wild = trainer(1e30, 50)
+    wild.resume()
+    with pytest.raises(
+        I2PBenchError, match=rf"training stopped at step \d+: the .* \(lr 1e\+30\); {tmp_path}/w.pt keeps"
+    ):
+        wild.run({})
+    assert 2 < wild.step < 50
+    assert (tmp_path / "w.pt").read_bytes() == good and load_checkpoint(tmp_path / "w.pt").meta["steps"] == 2
+    with pytest.raises(I2PBenchError, match="training lr inf: give a finite positive number"):
+        trainer(float("inf"), 2)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from dataclasses import replace
@@ -64,10 +65,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--batch-size", type=positive_int, default=1, help="frames per forward pass (per rank)")
     p.add_argument("--accumulate", type=positive_int, default=1, help="forward passes per optimiser step")
     p.add_argument("--workers", type=non_negative_int, default=0, help="DataLoader worker processes for data work")
-    p.add_argument("--lr", type=float, default=1e-4)
+    p.add_argument("--lr", type=positive_float, default=1e-4, help="peak learning rate (finite, positive)")
     p.add_argument("--warmup-steps", type=non_negative_int, default=0, help="linear learning-rate warm-up")
     p.add_argument("--schedule", choices=("constant", "cosine"), default="constant", help="after the warm-up")
-    p.add_argument("--grad-clip", type=float, default=1.0, help="gradient-norm clip")
+    p.add_argument("--grad-clip", type=positive_float, default=1.0, help="gradient-norm clip (finite, positive)")
     p.add_argument(
         "--augment",
         type=augment_list,
@@ -103,6 +104,17 @@ def non_negative_int(text: str) -> int:
         return positive_int(text)
     except argparse.ArgumentTypeError:
         raise argparse.ArgumentTypeError(f"{text!r} is not 0 or a positive integer") from None
+
+
+def positive_float(text: str) -> float:
+    """An argparse type: a finite number above 0 (an inf or NaN learning rate trains NaN weights)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite positive number")
+    return value
 
 
 def augment_list(text: str) -> str:
