@@ -6,11 +6,14 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import toy_plugin
 from test_cli_errors import ROOT, assert_refused, i2pbench
+from test_data_bad_input import KITTI, needs_kitti
 
 from i2pbench.commands.train import check_out
+from i2pbench.data.kitti import read_frame
 from i2pbench.data.synthetic.dataset import SyntheticStreets
 from i2pbench.errors import DataError, I2PBenchError, WeightsError
 
@@ -134,3 +137,38 @@ def test_training_stops_on_exploding_weights_and_keeps_the_last_good_checkpoint(
     assert (tmp_path / "w.pt").read_bytes() == good and load_checkpoint(tmp_path / "w.pt").meta["steps"] == 2
     with pytest.raises(I2PBenchError, match="training lr inf: give a finite positive number"):
         trainer(float("inf"), 2)
+
+
+# ---- KITTI calib.txt: a key given twice; lines that are no calibration key ----
+
+
+@pytest.fixture
+def kitti_seq(tmp_path) -> Path:
+    """a one-frame copy of real sequence 00, to break."""
+    dst = tmp_path / "sequences" / "00"
+    for rel in ("calib.txt", "velodyne/000000.bin", "image_2/000000.png"):
+        (dst / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(KITTI / rel, dst / rel)
+    return dst
+
+
+@needs_kitti
+def test_a_second_tr_line_is_an_error_naming_file_and_key(kitti_seq):
+    seq = kitti_seq
+    calib = seq / "calib.txt"
+    text = calib.read_text()
+    tr = next(line for line in text.splitlines() if line.startswith("Tr:"))
+    calib.write_text(text + tr.replace(tr.split()[1], "0.5", 1) + "\n")
+    lineno = len(text.splitlines()) + 1
+    with pytest.raises(DataError, match=rf"{calib}:{lineno}: a second Tr line \(the first is line \d\); keep one"):
+        read_frame(seq, "000000")
+
+
+@needs_kitti
+def test_calib_time_and_comment_lines_are_skipped(kitti_seq):
+    seq = kitti_seq
+    calib = seq / "calib.txt"
+    plain = read_frame(seq, "000000")
+    calib.write_text("# calibrated: 2011-09-26\ncalib_time: 09-Jan-2012 13:57:47\n\n" + calib.read_text())
+    np.testing.assert_array_equal(read_frame(seq, "000000").K, plain.K)
+    np.testing.assert_array_equal(read_frame(seq, "000000").T_cam_lidar, plain.T_cam_lidar)

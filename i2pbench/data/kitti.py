@@ -32,26 +32,34 @@ BENCHMARK_SEQUENCES = frozenset(f"{i:02d}" for i in range(22))  # KITTI Odometry
 FRAME_PERIOD_S = 0.1  # KITTI's scans come at 10 Hz: the frame times of a sequence without times.txt
 
 
-def _parse_calib(path: Path) -> dict[str, np.ndarray]:
+def _parse_calib(path: Path, needed: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The `KEY: numbers` lines of a calib.txt. Comments and lines that are no key are skipped, and so is a key of
+    other values (`calib_time: 09-Jan-2012 13:57:47`) unless it is `needed`; a key given twice is an error."""
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError as exc:
         raise DataError(f"{path}: not a text calibration file (byte {exc.start} is not UTF-8 text)") from exc
     out: dict[str, np.ndarray] = {}
+    seen: dict[str, int] = {}
     for lineno, line in enumerate(text.splitlines(), 1):
         key, sep, values = line.partition(":")
-        if not sep:
+        key = key.strip()
+        if not sep or not key.isidentifier():
             continue
+        if key in seen:
+            raise DataError(f"{path}:{lineno}: a second {key} line (the first is line {seen[key]}); keep one")
+        seen[key] = lineno
         try:
-            out[key.strip()] = np.array([float(v) for v in values.split()], dtype=np.float64)
+            out[key] = np.array([float(v) for v in values.split()], dtype=np.float64)
         except ValueError as exc:
-            raise DataError(f"{path}:{lineno}: {key.strip()} holds a non-number ({exc})") from exc
+            if key in needed:
+                raise DataError(f"{path}:{lineno}: {key} holds a non-number ({exc})") from exc
     return out
 
 
 @lru_cache(maxsize=64)
 def _calib_cached(path: str, mtime_ns: int, camera: int) -> tuple[np.ndarray, np.ndarray]:
-    calib = _parse_calib(Path(path))
+    calib = _parse_calib(Path(path), (f"P{camera}", "Tr"))
     mats = {}
     for key in (f"P{camera}", "Tr"):
         if key not in calib:
@@ -112,7 +120,7 @@ def _lidar_poses_cached(poses: str, calib: str, times: str | None, stamps: tuple
 
 
 def _tr(calib_path: Path) -> np.ndarray:
-    calib = _parse_calib(calib_path)
+    calib = _parse_calib(calib_path, ("Tr",))
     if "Tr" not in calib or calib["Tr"].size != 12:
         raise DataError(f"{calib_path}: no Tr line of 12 numbers (needed with the sequence's poses)")
     return calib["Tr"].reshape(3, 4)
