@@ -3,6 +3,7 @@ already made (real data, shipped weights, finished frames) is overwritten or los
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -10,10 +11,12 @@ import numpy as np
 import pytest
 import toy_plugin
 from test_cli_errors import ROOT, assert_refused, i2pbench
-from test_data_bad_input import KITTI, needs_kitti
+from test_data_bad_input import KITTI, RECORDS, needs_kitti, needs_nuscenes
 
 from i2pbench.commands.train import check_out
 from i2pbench.data.kitti import read_frame
+from i2pbench.data.nuscenes import NuScenes
+from i2pbench.data.nuscenes_dataroot import build_dataroot
 from i2pbench.data.synthetic.dataset import SyntheticStreets
 from i2pbench.errors import DataError, I2PBenchError, WeightsError
 
@@ -172,3 +175,18 @@ def test_calib_time_and_comment_lines_are_skipped(kitti_seq):
     calib.write_text("# calibrated: 2011-09-26\ncalib_time: 09-Jan-2012 13:57:47\n\n" + calib.read_text())
     np.testing.assert_array_equal(read_frame(seq, "000000").K, plain.K)
     np.testing.assert_array_equal(read_frame(seq, "000000").T_cam_lidar, plain.T_cam_lidar)
+
+
+# ---- nuScenes tables: a token given twice ----
+
+
+@needs_nuscenes
+@pytest.mark.parametrize("table", ["calibrated_sensor", "sample_data"])
+def test_a_nuscenes_token_given_twice_is_an_error_naming_table_and_token(tmp_path, table):
+    root = tmp_path / "nuscenes"
+    build_dataroot([RECORDS], root)
+    path = root / "v1.0-trainval" / f"{table}.json"
+    rows = json.loads(path.read_text())
+    path.write_text(json.dumps([*rows, {**rows[0], "filename": "elsewhere.jpg"}]))  # a second record, same token
+    with pytest.raises(DataError, match=rf"{path}: token {rows[0]['token']} is given to two records"):
+        NuScenes("val", {"root": str(root)}).frame_ids()

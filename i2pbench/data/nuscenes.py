@@ -124,9 +124,25 @@ def open_devkit(dataroot: str, version: str) -> Any:
         raise DataError(f"{Path(dataroot) / version} not found (the nuScenes dataroot must hold the {version} tables)")
     devkit_class, _ = _devkit()
     try:
-        return devkit_class(version=version, dataroot=dataroot, verbose=False)
+        nusc = devkit_class(version=version, dataroot=dataroot, verbose=False)
     except (AssertionError, OSError, KeyError, IndexError, ValueError) as exc:
         raise DataError(f"{Path(dataroot) / version}: the devkit cannot load these tables: {exc!r}") from exc
+    _refuse_duplicate_tokens(nusc, Path(dataroot) / version)
+    return nusc
+
+
+def _refuse_duplicate_tokens(nusc: Any, tables: Path) -> None:
+    """the devkit indexes records by token and the last of two with one token silently wins (another image or
+    calibration, read as fine): a token given twice is an error naming the table and the token."""
+    for table, index in nusc._token2ind.items():
+        records = getattr(nusc, table)
+        if len(index) == len(records):
+            continue
+        seen: set[str] = set()
+        for record in records:
+            if record["token"] in seen:
+                raise DataError(f"{tables / table}.json: token {record['token']} is given to two records")
+            seen.add(record["token"])
 
 
 class NuScenes(Dataset):
