@@ -190,3 +190,18 @@ def test_a_nuscenes_token_given_twice_is_an_error_naming_table_and_token(tmp_pat
     path.write_text(json.dumps([*rows, {**rows[0], "filename": "elsewhere.jpg"}]))  # a second record, same token
     with pytest.raises(DataError, match=rf"{path}: token {rows[0]['token']} is given to two records"):
         NuScenes("val", {"root": str(root)}).frame_ids()
+
+
+# ---- local workers are capped at the cores ----
+
+
+def test_local_workers_are_capped_at_the_usable_cores_and_it_is_said(monkeypatch, capsys):
+    from i2pbench.runs import executors
+
+    monkeypatch.setattr(executors.os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
+    assert executors.make_executor("local", 1000, threads=1).workers == 4
+    assert capsys.readouterr().err == "i2pbench: note: --workers 1000 capped at 4, the cores this process may use\n"
+    assert executors.make_executor("local", 3, threads=2).workers == 3
+    assert capsys.readouterr().err == ""  # within the cores: nothing to say
+    monkeypatch.setattr(executors.os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    assert executors.make_executor("local", 8) is None  # one core: one worker, serial in this process

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import math
 import multiprocessing
+import os
+import sys
 from collections.abc import Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -289,4 +291,20 @@ def make_executor(
         raise I2PBenchError(f"unknown executor {kind!r}; choose one of {', '.join(EXECUTORS)}")
     if address:
         raise I2PBenchError("--address names a Ray cluster: use it with --executor ray")
+    workers = capped_workers(workers)
     return LocalExecutor(workers, threads, device) if workers and workers > 1 else None
+
+
+def usable_cores() -> int:
+    """the cores this process may run on (its affinity mask, e.g. a container's or taskset's share)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def capped_workers(workers: int | None) -> int | None:
+    """local workers beyond the cores only contend (each holding its own copy of the weights), which inflates the
+    latencies a board reports: at most one per usable core, said on stderr when capped."""
+    cap = usable_cores()
+    if workers is None or workers <= cap:
+        return workers
+    print(f"i2pbench: note: --workers {workers} capped at {cap}, the cores this process may use", file=sys.stderr)
+    return cap
