@@ -41,10 +41,11 @@ def _run(registry, store, **kwargs):
 
 def test_put_then_get_round_trips_a_record(tmp_path):
     store = ResultsStore(tmp_path)
-    record = {**RESULT, "frame_id": "a", "rte_m": 0.5, "T_pred": [1.0, 0.0], "error": "", "t_encoder2d_s": float("nan")}
+    pose = [float(v) for v in range(16)]
+    record = {**RESULT, "frame_id": "a", "rte_m": 0.5, "T_pred": pose, "error": "", "t_encoder2d_s": float("nan")}
     store.put("k", record)
     got = store.get("k")
-    assert got["frame_id"] == "a" and got["rte_m"] == 0.5 and got["T_pred"] == [1.0, 0.0]
+    assert got["frame_id"] == "a" and got["rte_m"] == 0.5 and got["T_pred"] == pose
     assert pd.isna(got["t_encoder2d_s"])
     assert store.get("absent") is None
     assert [p.name for p in (tmp_path / "frames").iterdir()] == ["k.parquet"]  # no temp file left behind
@@ -184,7 +185,7 @@ import sys
 from i2pbench.runs.store import ResultsStore
 store = ResultsStore(sys.argv[1])
 for i in range(1000):
-    store.put(f"k{{i:04d}}", {{**{RESULT!r}, "frame_id": str(i), "T_pred": [float(i)] * 2_000_000}})
+    store.put(f"k{{i:04d}}", {{**{RESULT!r}, "frame_id": str(i), "payload": [float(i)] * 2_000_000}})
 """
 
 
@@ -200,7 +201,7 @@ def test_a_writer_killed_in_the_middle_of_a_write_leaves_only_whole_files(tmp_pa
     store = ResultsStore.__new__(ResultsStore)  # open without sweeping, to see what the kill left
     store.root, store.frames_dir = tmp_path, frames
     finished = store.load()
-    assert len(finished) >= 2 and all(len(t) == 2_000_000 for t in finished["T_pred"])
+    assert len(finished) >= 2 and all(len(t) == 2_000_000 for t in finished["payload"])
     assert list(frames.glob(".*.tmp"))  # the interrupted write is still there, unseen by load
     ResultsStore(tmp_path)
     assert not list(frames.glob(".*.tmp"))  # and is swept once its writer is dead

@@ -78,9 +78,25 @@ def check_result(table: pa.Table) -> None:
         if name in schema.names and not ok(schema.field(name).type)
     ]
     rows = [] if table.num_rows == 1 else [f"{table.num_rows} rows, not 1"]
+    if not rows:
+        rows = _pose_problems(table)
     if missing or wrong or rows:
         problems = ([f"no column {', '.join(missing)}"] if missing else []) + wrong + rows
         raise SchemaError(f"not a frame result: {'; '.join(problems)}")
+
+
+def _pose_problems(table: pa.Table) -> list[str]:
+    """the stored poses (`evaluate` and `report` rebuild 4 x 4 matrices from them) must hold 16 numbers or none."""
+    frame = table.column("frame_id")[0].as_py() if "frame_id" in table.schema.names else "?"
+    problems = []
+    for name in ("T_pred", "T_gt"):
+        if name not in table.schema.names:
+            continue
+        values = table.column(name)[0].as_py()
+        if values is not None and (not isinstance(values, list) or len(values) != 16):
+            size = len(values) if isinstance(values, list) else type(values).__name__
+            problems.append(f"frame {frame}'s {name} holds {size} values, not the 16 of a 4 x 4 pose")
+    return problems
 
 
 class ResultsStore:
