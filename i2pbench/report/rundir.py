@@ -17,6 +17,7 @@ import pandas as pd
 
 from ..errors import DataError, I2PBenchError
 from ..protocol import Protocol
+from ..runs.evaluate import readable
 from ..runs.invocation import history
 from ..runs.store import ResultsStore
 from ..types import Frame
@@ -45,7 +46,8 @@ def load_run(root: str | Path) -> RunDir:
     if records.empty:
         raise I2PBenchError(f"{root}: no per-frame results in {root / 'frames'}")
     meta = _metadata(root)
-    protocol = _latest(meta, "protocol", Protocol(), lambda card: Protocol(**card))
+    with readable(root, next((m for m in reversed(meta) if isinstance(m.get("protocol"), dict)), {})):
+        protocol = _latest(meta, "protocol", Protocol(), lambda card: Protocol(**card))
     records, notes = _one_protocol(records, protocol)
     return RunDir(root, records, protocol, _latest(meta, "dataset", {}, dict), meta, notes)
 

@@ -7,20 +7,22 @@ under the run's protocol card, or under other success and filter thresholds.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from .. import leaderboard
+from .. import __version__, leaderboard
 from ..errors import I2PBenchError
 from ..metrics import FAILED, pose_errors
 from ..protocol import Protocol
-from .invocation import history
+from .invocation import history, record_file, written_by
 from .store import ResultsStore
 
 LAST, ALL = "last", "all"
@@ -51,13 +53,28 @@ def evaluate(run_dir: str | Path, invocation: str = LAST, **thresholds: float | 
         card = _single_card(records, runs, root)
     else:
         meta = _invocation(runs, invocation, root)
-        records, card = _grid(records, meta), meta["protocol"]
-        expected = len(meta["frames"]) * len(meta["combinations"])
+        with readable(root, meta):
+            records, card = _grid(records, meta), meta["protocol"]
+            expected = len(meta["frames"]) * len(meta["combinations"])
+            Protocol(**card)
         if records.empty:
             raise I2PBenchError(f"{root}: none of invocation {meta['id']}'s frames is in the store")
     protocol = dataclasses.replace(Protocol(**card), **{k: v for k, v in thresholds.items() if v is not None})
     records = rescore(records)
     return Evaluation(leaderboard.build(records, protocol), protocol, records, expected)
+
+
+@contextlib.contextmanager
+def readable(root: Path, meta: dict[str, Any]) -> Iterator[None]:
+    """an invocation record of another layout (written by another version: a key missing, a protocol field this
+    version does not know) is one error naming its file and the version that wrote it."""
+    try:
+        yield
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise I2PBenchError(
+            f"{record_file(root, meta)}: written by {written_by(meta)}, which this i2pbench ({__version__}) cannot "
+            f"read ({type(exc).__name__}: {exc}); evaluate it with that version, or rerun into a new --runs-dir"
+        ) from None
 
 
 def rescore(records: pd.DataFrame) -> pd.DataFrame:
@@ -82,7 +99,7 @@ def _matrix(values: Any) -> np.ndarray | None:
 def _invocation(runs: list[dict[str, Any]], wanted: str, root: Path) -> dict[str, Any]:
     """The chosen invocation's metadata: the last one, or the one whose id starts with `wanted`."""
     if not runs:
-        raise I2PBenchError(f"{root}: no invocations/ files, so no grid to evaluate; pass --invocation all")
+        raise I2PBenchError(f"{root}: no readable invocations/ files, so no grid to evaluate; pass --invocation all")
     if wanted == LAST:
         return runs[-1]
     found = [meta for meta in runs if str(meta.get("id", "")).startswith(wanted)]
@@ -124,7 +141,10 @@ def _single_card(records: pd.DataFrame, runs: list[dict[str, Any]], root: Path) 
     if len(identities) != 1:
         raise I2PBenchError(f"{root}: the records span {len(identities)} protocols ({', '.join(identities)}); "
                             "evaluate one invocation's grid with --invocation ID")  # fmt: skip
-    cards = [meta["protocol"] for meta in runs if Protocol(**meta["protocol"]).identity() == identities[0]]
+    cards = []
+    for meta in runs:
+        with readable(root, meta):
+            cards += [meta["protocol"]] if Protocol(**meta["protocol"]).identity() == identities[0] else []
     if not cards and Protocol().identity() != identities[0]:
         raise I2PBenchError(f"{root}: no invocation records protocol {identities[0]}'s card")
     return cards[0] if cards else Protocol().card()

@@ -10,8 +10,11 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import sys
 from pathlib import Path
 from typing import Any
+
+from ..errors import I2PBenchError
 
 
 def _now() -> datetime.datetime:
@@ -34,13 +37,52 @@ class Invocation:
         self._write()
 
     def _write(self) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        folder = self.path.parent
+        if folder.exists() and not folder.is_dir():
+            raise I2PBenchError(f"{folder} is a file, not the folder where the store keeps its invocation records; "
+                                "move it aside")  # fmt: skip
         tmp = self.path.with_name(f".{self.path.name}.tmp")
-        tmp.write_text(json.dumps(self.meta, indent=2, default=str) + "\n")
-        os.replace(tmp, self.path)
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            tmp.write_text(json.dumps(self.meta, indent=2, default=str) + "\n")
+            os.replace(tmp, self.path)
+        except OSError as exc:
+            tmp.unlink(missing_ok=True)
+            raise I2PBenchError(f"{self.path}: could not write the invocation record ({exc.strerror or exc})") from None
 
 
 def history(store_root: str | Path) -> list[dict[str, Any]]:
-    """Every invocation recorded in a store, oldest first."""
-    paths = sorted((Path(store_root) / "invocations").glob("*.json"))
-    return [json.loads(p.read_text()) for p in paths]
+    """Every readable invocation recorded in a store, oldest first; one that cannot be read (truncated, not JSON)
+    is named on stderr and left out, so the others still count."""
+    paths = sorted((Path(store_root) / "invocations").glob("*.json")) if _folder(store_root) else []
+    runs = []
+    for path in paths:
+        try:
+            meta = json.loads(path.read_text(encoding="utf-8"))
+            if not isinstance(meta, dict):
+                raise ValueError(f"a JSON {type(meta).__name__}, not an object")
+        except (OSError, ValueError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+            print(f"i2pbench: warning: {path}: not a readable invocation record ({exc}); left out", file=sys.stderr)
+            continue
+        runs.append(meta)
+    return runs
+
+
+def _folder(store_root: str | Path) -> bool:
+    folder = Path(store_root) / "invocations"
+    if folder.exists() and not folder.is_dir():
+        print(f"i2pbench: warning: {folder} is a file, not a folder of invocation records; left out", file=sys.stderr)
+        return False
+    return True
+
+
+def record_file(store_root: str | Path, meta: dict[str, Any]) -> Path:
+    """the file an invocation's record was read from (named by its id)."""
+    return Path(store_root) / "invocations" / f"{meta.get('id', '?')}.json"
+
+
+def written_by(meta: dict[str, Any]) -> str:
+    """which i2pbench wrote an invocation record: its version and commit, as the record says."""
+    environment = meta.get("environment") if isinstance(meta.get("environment"), dict) else {}
+    version = (environment.get("packages") or {}).get("i2pbench", "an unrecorded version")
+    return f"i2pbench {version} (commit {environment.get('git_commit', 'unrecorded')})"
