@@ -4,6 +4,7 @@ already made (real data, shipped weights, finished frames) is overwritten or los
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -205,3 +206,114 @@ def test_local_workers_are_capped_at_the_usable_cores_and_it_is_said(monkeypatch
     assert capsys.readouterr().err == ""  # within the cores: nothing to say
     monkeypatch.setattr(executors.os, "sched_getaffinity", lambda pid: {0}, raising=False)
     assert executors.make_executor("local", 8) is None  # one core: one worker, serial in this process
+
+
+# ---- a runs folder with broken or foreign files: evaluate, report and run name the file ----
+
+KITTI_ROOT = KITTI.parents[1]
+CLASSIC = ["--extractor", "canny", "--extractor3d", "depth", "--matcher", "oracle", "--solver", "epnp-ransac"]
+
+
+def _run(runs: Path, frames: int = 2, cwd: Path | None = None):
+    args = ["run", "--dataset", "kitti", "--split", "all", "--data-root", str(KITTI_ROOT), *CLASSIC]
+    return i2pbench(*args, "--frames", str(frames), "--runs-dir", str(runs), "--quiet", cwd=cwd or runs.parent)
+
+
+@pytest.fixture(scope="module")
+def stored(tmp_path_factory) -> Path:
+    """a runs folder of two invocations (2 frames, then 3), copied by each test before it breaks it."""
+    if not KITTI.is_dir():
+        pytest.skip("real KITTI frames not found")
+    runs = tmp_path_factory.mktemp("stored") / "runs"
+    assert _run(runs, 2).returncode == 0 and _run(runs, 3).returncode == 0
+    return runs / "kitti-all"
+
+
+def _copy(stored: Path, tmp_path: Path) -> Path:
+    return Path(shutil.copytree(stored, tmp_path / "kitti-all"))
+
+
+def test_a_stored_pose_of_3_values_is_named_by_file_and_frame_and_the_rest_evaluates(stored, tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    run = _copy(stored, tmp_path)
+    path = sorted((run / "frames").glob("*.parquet"))[0]
+    record = pq.read_table(path).to_pylist()[0]
+    pq.write_table(pa.Table.from_pylist([{**record, "T_pred": [1.0, 2.0, 3.0]}]), path)
+    done = i2pbench("evaluate", str(run), cwd=tmp_path)
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+    assert f"malformed result {path}" in done.stderr
+    assert f"frame {record['frame_id']}'s T_pred holds 3 values, not the 16 of a 4 x 4 pose" in done.stderr
+    assert "2 per-frame records of the grid's 3" in done.stderr  # the other frames still count
+
+
+def test_a_truncated_invocation_record_is_named_and_the_others_still_report(stored, tmp_path):
+    run = _copy(stored, tmp_path)
+    first, last = sorted((run / "invocations").glob("*.json"))
+    first.write_text(first.read_text()[:100])
+    for args in (["evaluate", str(run)], ["report", str(run), "--out", str(tmp_path / "r.html")]):
+        done = i2pbench(*args, cwd=tmp_path)
+        assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+        assert f"i2pbench: warning: {first}: not a readable invocation record (Unterminated string" in done.stderr
+    assert "3 per-frame records of the grid's 3" in i2pbench("evaluate", str(run), cwd=tmp_path).stderr
+    last.write_text("[1, 2]")
+    done = i2pbench("evaluate", str(run), cwd=tmp_path)
+    assert_refused(done, str(run), "no readable invocations/ files", "--invocation all")
+    assert f"{last}: not a readable invocation record (a JSON list, not an object)" in done.stderr
+
+
+def test_an_invocation_record_of_another_version_names_the_file_and_that_version(stored, tmp_path):
+    run = _copy(stored, tmp_path)
+    last = sorted((run / "invocations").glob("*.json"))[-1]
+    meta = json.loads(last.read_text())
+    meta["protocol"]["new_knob"] = 1
+    meta["environment"]["packages"]["i2pbench"] = "9.0.0"
+    last.write_text(json.dumps(meta))
+    for args in (["evaluate", str(run)], ["report", str(run), "--out", str(tmp_path / "r.html")]):
+        done = i2pbench(*args, cwd=tmp_path)
+        assert_refused(done, str(last), "written by i2pbench 9.0.0 (commit", "new_knob")
+    del meta["frames"]
+    meta["protocol"].pop("new_knob")
+    last.write_text(json.dumps(meta))
+    assert_refused(i2pbench("evaluate", str(run), cwd=tmp_path), str(last), "KeyError: 'frames'")
+
+
+def test_an_invocations_path_that_is_a_file_is_one_error_and_the_frames_stay(stored, tmp_path):
+    runs = tmp_path / "runs"
+    run = _copy(stored, runs)
+    shutil.rmtree(run / "invocations")
+    (run / "invocations").write_text("")
+    frames = sorted(p.name for p in (run / "frames").iterdir())
+    assert_refused(_run(runs, 2, cwd=tmp_path), f"{run / 'invocations'} is a file", "move it aside")
+    assert sorted(p.name for p in (run / "frames").iterdir()) == frames
+
+
+# ---- a checkpoint whose metadata is malformed ----
+
+
+@pytest.mark.parametrize(
+    ("edit", "named"),
+    [
+        (lambda meta: meta.update(stages=["encoder2d"]), "meta field 'stages' is list"),
+        (lambda meta: meta.pop("stages"), "meta field 'stages' is NoneType"),
+        (lambda meta: meta["stages"].update(matcher={"name": 3}), "meta field 'stages.matcher' is not an object"),
+        (lambda meta: meta.update(trained_on="synthetic"), "meta field 'trained_on' is str, not an object"),
+        (lambda meta: meta.update(lineage=[1]), "meta field 'lineage' holds an entry that is not an object"),
+    ],
+    ids=["stages-list", "stages-missing", "stage-name", "trained-on-string", "lineage-entry"],
+)
+def test_a_checkpoint_with_malformed_meta_is_refused_naming_the_field(edit, named, tmp_path):
+    import torch
+
+    from i2pbench.weights import content_digest, load_checkpoint
+
+    payload = torch.load(SHIPPED, map_location="cpu", weights_only=True)
+    meta = json.loads(payload["meta"])
+    edit(meta)
+    payload["meta"] = json.dumps(meta)
+    payload["sha256"] = content_digest(payload["meta"], payload["state"])  # well formed but for the meta
+    bad = tmp_path / "bad.pt"
+    torch.save(payload, bad)
+    with pytest.raises(WeightsError, match=rf"checkpoint {bad} is malformed: {re.escape(named)}.*; refusing it"):
+        load_checkpoint(bad)
