@@ -194,9 +194,34 @@ def _read_checkpoint(path: Path, stamp: tuple[int, int, int]) -> Checkpoint:
             f"checkpoint {path} is corrupt: its content no longer matches the sha256 recorded when it was saved "
             "(flipped bytes on disk or in transfer); restore it from a good copy"
         )
-    if meta.get("format") != FORMAT:
-        raise WeightsError(f"checkpoint {path} has format {meta.get('format')!r}, expected {FORMAT!r}")
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        found = meta.get("format") if isinstance(meta, dict) else meta
+        raise WeightsError(f"checkpoint {path} has format {found!r}, expected {FORMAT!r}")
+    problem = _meta_problem(meta, state)
+    if problem:
+        raise WeightsError(f"checkpoint {path} is malformed: {problem}; refusing it")
     return Checkpoint(path, meta, state)
+
+
+def _meta_problem(meta: dict[str, Any], state: Any) -> str | None:
+    """what in a checkpoint's metadata or state is not of the shape the loaders read (None: all is), so a
+    hand-edited or foreign file is refused naming the field instead of failing later on an attribute."""
+    stages = meta.get("stages")
+    if not isinstance(stages, dict):
+        return f"meta field 'stages' is {type(stages).__name__}, not an object of stage kind -> name and conf"
+    for kind, sig in stages.items():
+        if not (isinstance(sig, dict) and isinstance(sig.get("name"), str) and isinstance(sig.get("conf"), dict)):
+            return f"meta field 'stages.{kind}' is not an object with a 'name' string and a 'conf' object"
+    for field, kind in (("trained_on", dict), ("lineage", list), ("train_config", dict), ("validation", dict)):
+        if field in meta and meta[field] is not None and not isinstance(meta[field], kind):
+            return (
+                f"meta field {field!r} is {type(meta[field]).__name__}, not {'an object' if kind is dict else 'a list'}"
+            )
+    if any(not isinstance(d, dict) for d in meta.get("lineage") or []):
+        return "meta field 'lineage' holds an entry that is not an object"
+    if not isinstance(state, dict) or any(not isinstance(v, dict) for v in state.values()):
+        return "its state is not an object of stage kind -> state dict"
+    return None
 
 
 def mismatch(checkpoint: Checkpoint, pipeline: Pipeline, *, strict_extractors: bool) -> str | None:
