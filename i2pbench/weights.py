@@ -69,7 +69,7 @@ def data_label(data: dict[str, Any]) -> str:
 def _source(data: dict[str, Any]) -> str:
     if "release" in data:  # weights imported from another code base: who trained them, on what
         return str(data["release"])
-    style = f"[{data['style']}]" if data.get("style") else ""
+    style = f"[{data['style']}]" if data.get("style") else f"[fold {data['fold']}]" if data.get("fold") else ""
     return f"{data.get('dataset', '?')}{style}/{data.get('split', '?')}"
 
 

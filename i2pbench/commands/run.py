@@ -118,6 +118,30 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
         help="dataset config (YAML values; dotted keys nest, e.g. frames.test=3)",
     )
     p.add_argument("--frames", type=positive_int, default=None, help="use only the first N frames of the split")
+    add_split_options(p)
+
+
+def add_split_options(p: argparse.ArgumentParser) -> None:
+    """Splits by scene from a split file (kitti-drives; docs/datasets.md#kitti-drives)."""
+    p.add_argument("--split-file", metavar="NAME|PATH", help="the dataset's split file: a committed name "
+                   "(kitti-real-drives) or a path; datasets with a split_file config only")  # fmt: skip
+    p.add_argument("--fold", metavar="K/N", help="k-fold cross-validation by scene: test = fold K, val = fold K+1, "
+                   "train = the rest (datasets with a fold config only)")  # fmt: skip
+
+
+def split_conf(registry, args: argparse.Namespace, conf: dict[str, Any]) -> dict[str, Any]:
+    """`conf` with --split-file and --fold as the dataset's config, refused for a dataset without those keys."""
+    from ..errors import DataError
+
+    given = {"split_file": getattr(args, "split_file", None), "fold": getattr(args, "fold", None)}
+    for key, value in given.items():
+        if value is None:
+            continue
+        if key not in registry.dataset(args.dataset).default_conf:
+            option = "--" + key.replace("_", "-")
+            raise DataError(f"{option}: dataset {args.dataset!r} has no {key} config (kitti-drives has)")
+        conf[key] = value
+    return conf
 
 
 def parse_data_conf(items: list[str]) -> dict[str, Any]:
@@ -143,7 +167,7 @@ def open_dataset(registry, args: argparse.Namespace):
     conf = parse_data_conf(getattr(args, "data_conf", []))
     if args.data_root:
         conf["root"] = args.data_root
-    return registry.dataset(args.dataset)(args.split, conf)
+    return registry.dataset(args.dataset)(args.split, split_conf(registry, args, conf))
 
 
 def _combinations(registry, args: argparse.Namespace):
@@ -197,7 +221,7 @@ def run(args: argparse.Namespace) -> int:
     if not frame_ids:
         raise DataError(f"dataset {dataset.name!r} split {dataset.split!r} has no frames to run")
     protocols = _protocols(registry, Protocol(seed=args.seed), args, dataset, frame_ids)
-    name = f"{dataset.name}-{dataset.split}"
+    name = f"{dataset.name}-{dataset.split}{getattr(dataset, 'board_suffix', '')}"  # a fold's board is its own
     store = _open_store(Path(args.runs_dir) / name)
     invocation = Invocation(store.root, _meta(args, threads, protocols, dataset, frame_ids, combinations))
     start = time.perf_counter()

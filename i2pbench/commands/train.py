@@ -10,7 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .run import STAGE_OPTIONS, parse_data_conf, positive_int, yaml_setting
+from .run import STAGE_OPTIONS, add_split_options, parse_data_conf, positive_int, split_conf, yaml_setting
 
 if TYPE_CHECKING:  # the CLI starts without importing the training code
     from ..data.base import Dataset
@@ -43,6 +43,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="KEY=VALUE",
         help="dataset config for the train and val splits (e.g. frames.train=20000)",
     )
+    add_split_options(p)  # for the train and val splits of --dataset
     p.add_argument(
         "--out",
         required=True,
@@ -147,11 +148,17 @@ def _datasets(
 ) -> tuple[Dataset, Dataset | None, list[MixedSource]]:
     """(train set, val set or None, mixed-in sources); each --mix and --val-dataset split is listed now, so a
     wrong one stops the run before the pipeline is built."""
+    from ..errors import DataError
     from ..training_mix import MixedSource, open_source
 
     data_conf = parse_data_conf(args.data_conf)
     if args.data_root:
         data_conf["root"] = args.data_root
+    data_conf = split_conf(registry, args, data_conf)
+    others = [spec.dataset for spec in [*mix_specs, val_spec] if spec is not None]
+    if (args.fold or args.split_file) and args.dataset in others:
+        raise DataError(f"--fold/--split-file apply to --dataset's splits only; validate with --val-split, not "
+                        f"--val-dataset/--mix naming {args.dataset!r} again")  # fmt: skip
     train_set = registry.dataset(args.dataset)(args.split, data_conf)
     mix = [MixedSource(open_source(registry, spec, "--mix"), spec.share) for spec in mix_specs]
     if val_spec is not None:

@@ -25,6 +25,7 @@ CORRUPTIONS = {
 @hookimpl
 def register_datasets(register) -> None:
     register("i2pbench.data.kitti:KittiOdometry", name="kitti")
+    register("i2pbench.data.kitti_drives:KittiDrives", name="kitti-drives")
     register("i2pbench.data.nuscenes:NuScenes", name="nuscenes")
     register("i2pbench.data.synthetic:SyntheticStreets", name="synthetic")
 

@@ -1,0 +1,52 @@
+"""Pool the test folds of a k-fold run by scene and print Acc. with true matches and the true-matches median, each
+with a 95% interval from resampling whole scenes (i2pbench.crossval).
+
+    for k in 1 2 3 4 5; do i2pbench run --dataset kitti-drives --data-root ../shared/data --split test --fold $k/5 \
+        --preset default --weights weights/fold$k.pt; done
+    python scripts/cross_validate.py --folds 5 --data-root ../shared/data
+
+Reads runs/kitti-drives-test-fold{K}of{N}/frames/*.parquet (the per-frame store each fold's run wrote); every fold
+must be there, since a missing fold would leave its scenes out of the estimate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from i2pbench.crossval import cross_validated
+from i2pbench.data.kitti_drives import DEFAULT_SPLIT_FILE, KittiDrives
+from i2pbench.leaderboard import to_markdown
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--folds", type=int, required=True, help="N of the K/N folds that were run")
+    p.add_argument("--runs-dir", default="runs")
+    p.add_argument("--data-root", required=True, help="the kitti-drives root the folds were run on")
+    p.add_argument("--split-file", default=DEFAULT_SPLIT_FILE)
+    p.add_argument("--out", help="also write the table to this .md file")
+    args = p.parse_args(argv)
+    suffix = "" if args.split_file == DEFAULT_SPLIT_FILE else f"-{Path(args.split_file).stem}"
+    parts = []
+    for k in range(1, args.folds + 1):
+        files = sorted(Path(args.runs_dir).glob(f"kitti-drives-test{suffix}-fold{k}of{args.folds}/frames/*.parquet"))
+        if not files:
+            print(f"cross_validate: no results for fold {k}/{args.folds} under {args.runs_dir}", file=sys.stderr)
+            return 1
+        parts += [pd.read_parquet(f) for f in files]
+    records = pd.concat(parts, ignore_index=True).drop_duplicates(["frame_id", "combination"], keep="last")
+    dataset = KittiDrives("all", {"root": args.data_root, "split_file": args.split_file})
+    table = cross_validated(records, dataset.scene_of)
+    text = to_markdown(table, list(table.columns))
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text + "\n", encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
