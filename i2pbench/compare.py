@@ -154,6 +154,9 @@ def read_board(path: str | Path, role: str = "leaderboard") -> pd.DataFrame:
 
 
 def _read_checked(path: Path) -> pd.DataFrame:
+    if path.suffix not in (".csv", ".parquet"):
+        what = f"a {path.suffix} file" if path.suffix else "a file without extension"
+        raise I2PBenchError(f"{path}: {what}; this takes a leaderboard's .csv or .parquet (written beside its .md)")
     if not path.is_file():
         raise I2PBenchError(f"{path}: no such leaderboard file")
     if path.stat().st_size == 0:
@@ -161,10 +164,13 @@ def _read_checked(path: Path) -> pd.DataFrame:
     if path.suffix != ".parquet":
         _check_csv(path)
     try:
-        return read(path)
+        board = read(path)
     except Exception as exc:  # pandas and pyarrow raise many types for a damaged file
         kind = "Parquet" if path.suffix == ".parquet" else "CSV"
         raise I2PBenchError(f"{path}: not a readable {kind} leaderboard ({type(exc).__name__}: {exc})") from None
+    if "combination" not in board:  # the row label every reader looks rows up by: refused here, not mid-way
+        raise I2PBenchError(f"{path}: not a leaderboard (no column combination)")
+    return board
 
 
 def _check_csv(path: Path) -> None:

@@ -317,3 +317,27 @@ def test_a_checkpoint_with_malformed_meta_is_refused_naming_the_field(edit, name
     torch.save(payload, bad)
     with pytest.raises(WeightsError, match=rf"checkpoint {bad} is malformed: {re.escape(named)}.*; refusing it"):
         load_checkpoint(bad)
+
+
+# ---- table, compare and viz: what they take is said before any work ----
+
+
+def test_table_and_compare_say_they_take_a_leaderboard_csv_or_parquet(stored, tmp_path):
+    board = stored.parent / "leaderboards" / "kitti-all"
+    for args in (
+        ["table", "--preset", "classic-oracle", f"KITTI={board}.md"],
+        ["compare", f"{board}.md", f"{board}.csv"],
+    ):
+        assert_refused(i2pbench(*args, cwd=tmp_path), f"{board}.md: a .md file", "leaderboard's .csv or .parquet")
+    record = next((stored / "invocations").glob("*.json"))
+    assert_refused(i2pbench("compare", f"{board}.csv", str(record), cwd=tmp_path), "baseline", "a .json file")
+    other = tmp_path / "other.csv"
+    other.write_text("a,b\n1,2\n")
+    done = i2pbench("table", "--preset", "classic-oracle", f"KITTI={other}", cwd=tmp_path)
+    assert_refused(done, f"leaderboard of KITTI {other}: not a leaderboard (no column combination)")
+
+
+def test_viz_refuses_an_out_without_png_before_any_work(tmp_path):
+    done = i2pbench("viz", "0", "--out", str(tmp_path / "picture"), cwd=tmp_path)
+    assert_refused(done, f"--out {tmp_path / 'picture'}", "give a path ending in .png")
+    assert list(tmp_path.iterdir()) == []  # no synthetic frames generated, nothing written

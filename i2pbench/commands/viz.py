@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .run import (
@@ -52,7 +53,7 @@ def resolve_frame(frame_ids: list[str], frame: str) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from ..devices import resolve_device
-    from ..errors import PluginError
+    from ..errors import I2PBenchError, PluginError
     from ..metrics import pose_errors
     from ..plugins import default_registry
     from ..protocol import Protocol
@@ -60,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
     from ..runs.environment import fix_threads
     from ..runs.runner import prepare
 
+    if args.out and Path(args.out).suffix.lower() != ".png":  # checked before any frame is loaded or run
+        raise I2PBenchError(f"--out {args.out}: viz writes a PNG; give a path ending in .png")
     fix_threads()
     device = str(resolve_device(args.device))
     registry = default_registry()
