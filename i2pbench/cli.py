@@ -15,6 +15,7 @@ import sys
 from collections.abc import Collection, Sequence
 from typing import NoReturn
 
+from . import __version__
 from .errors import I2PBenchError
 
 COMMANDS = (
@@ -66,6 +67,7 @@ class ArgumentParser(argparse.ArgumentParser):
 def build_parser(full: Collection[str] = COMMANDS) -> argparse.ArgumentParser:
     """The command line; commands outside `full` get only their name and summary (their options are not built)."""
     parser = ArgumentParser(prog="i2pbench", description="Benchmark image-to-LiDAR registration.")
+    parser.add_argument("--version", action="version", version=f"i2pbench {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     for name in COMMANDS:
         if name in full or name not in SUMMARIES:

@@ -23,5 +23,11 @@ def set_quiet(value: bool) -> None:
         os.environ[ENV_VAR] = "1"
 
 
+def note(text: str) -> None:
+    """a line about what was done (`written: ...`) on stderr, left out under --quiet."""
+    if not quiet():
+        print(text, file=sys.stderr)
+
+
 def bar(total: int, desc: str, unit: str = "frame", initial: int = 0) -> tqdm:
     return tqdm(total=total, desc=desc, unit=unit, initial=initial, disable=quiet(), file=sys.stderr)

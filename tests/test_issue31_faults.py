@@ -341,3 +341,28 @@ def test_viz_refuses_an_out_without_png_before_any_work(tmp_path):
     done = i2pbench("viz", "0", "--out", str(tmp_path / "picture"), cwd=tmp_path)
     assert_refused(done, f"--out {tmp_path / 'picture'}", "give a path ending in .png")
     assert list(tmp_path.iterdir()) == []  # no synthetic frames generated, nothing written
+
+
+# ---- first contact: --version; --quiet is quiet ----
+
+
+def test_version_prints_the_package_version(tmp_path):
+    from i2pbench import __version__
+
+    done = i2pbench("--version", cwd=tmp_path)
+    assert done.returncode == 0 and done.stdout == f"i2pbench {__version__}\n"
+
+
+def test_quiet_silences_the_written_lines_of_run_and_report(stored, tmp_path):
+    runs = tmp_path / "runs"
+    _copy(stored, runs)
+    run = ["run", "--dataset", "kitti", "--split", "all", "--data-root", str(KITTI_ROOT), *CLASSIC, "--frames", "2"]
+    run += ["--runs-dir", str(runs), "--out", str(tmp_path / "q")]
+    loud, quiet = i2pbench(*run, cwd=tmp_path), i2pbench(*run, "--quiet", cwd=tmp_path)
+    assert loud.returncode == quiet.returncode == 0
+    assert f"written: {tmp_path / 'q.csv'}" in loud.stderr
+    assert "written: " not in quiet.stderr and (tmp_path / "q.csv").is_file()
+    assert "| kitti | all | canny > depth > oracle > epnp-ransac |" in quiet.stdout  # the board itself still shows
+    report = ["report", str(runs / "kitti-all"), "--out", str(tmp_path / "r.html")]
+    assert "written: " in i2pbench(*report, cwd=tmp_path).stderr
+    assert "written: " not in i2pbench(*report, "--quiet", cwd=tmp_path).stderr

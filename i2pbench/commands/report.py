@@ -18,10 +18,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="best and worst frame overlays for this many combinations, top of the leaderboard (0: none)",
     )
     p.add_argument("--data-root", help="where the dataset lies now, if not where the run recorded it")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress bar, no `written:` line (errors still show)")
 
 
 def run(args: argparse.Namespace) -> int:
+    from .. import progress
     from ..errors import I2PBenchError
     from ..report.html import write_report
 
@@ -33,5 +34,5 @@ def run(args: argparse.Namespace) -> int:
         raise I2PBenchError(f"{exc.filename or out}: {exc.strerror or exc} ({where})") from None
     for note in notes:
         print(f"i2pbench: note: {note}", file=sys.stderr)
-    print(f"written: {out}", file=sys.stderr)
+    progress.note(f"written: {out}")
     return 0

@@ -85,7 +85,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", help="leaderboard file stem (default RUNS_DIR/leaderboards/<dataset>-<split>)")
     p.add_argument("--overwrite", action="store_true", help="recompute frames already in the cache")
     p.add_argument("--threads", type=positive_int, help="torch and OpenCV threads (default min(4, cores))")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress bar, no `written:` line (errors still show)")
     p.add_argument("--isolate", choices=("thread", "process"), help="run stages in a killable child process (process) "
                    "for untrusted plugins; default I2PBENCH_ISOLATE, else thread")  # fmt: skip
     add_scale_options(p)
@@ -202,7 +202,7 @@ def _grid_file(path: str):
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import leaderboard
+    from .. import leaderboard, progress
     from ..devices import resolve_device_name
     from ..errors import DataError
     from ..plugins import default_registry
@@ -232,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
     summary = _robustness(registry, board)
     stem = Path(args.out or Path(args.runs_dir) / "leaderboards" / name)
     paths = _write_board(board, records, stem, store.root, summary)
-    print(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store.root}", file=sys.stderr)
+    progress.note(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store.root}")
     return 0
 
 
