@@ -110,6 +110,15 @@ class _Progress:
             self.listener(self)
 
 
+def untrained_identity(learned: Mapping[str, Any]) -> str:
+    """`untrained`, plus the pretrained weights a learned stage starts from (its `pretrained_identity`, e.g.
+    `aliked-n16@1a2b3c4d`), so a row without a checkpoint still names every weight it ran with."""
+    pretrained = [
+        f"{kind}: {c.pretrained_identity}" for kind, c in learned.items() if getattr(c, "pretrained_identity", "")
+    ]
+    return "untrained" + (f" ({', '.join(pretrained)})" if pretrained else "")
+
+
 class Pipeline:
     """Instantiated components for every stage kind, in data-flow order."""
 
@@ -131,7 +140,7 @@ class Pipeline:
         self.limiter = TimeLimiter(timeout_from_env() if timeout_s == "env" else timeout_s)
         mode = isolation_from_env() if isolate == "env" else isolate
         self.isolation = ProcessIsolation(self.limiter.timeout_s) if mode == "process" else None
-        self.weights_identity = "none" if not self.learned_modules() else "untrained"
+        self.weights_identity = "none" if not self.learned_modules() else untrained_identity(self.learned_modules())
         self.weights_meta: dict[str, Any] = {}
         _check_compatibility(self.stages)
 

