@@ -7,6 +7,7 @@ P_diff = inv(T_pred) @ T_gt; RTE = ||P_diff[:3, 3]||; RRE = sum |extrinsic 'xzy'
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,9 +33,19 @@ def pose_errors(T_pred: np.ndarray | None, T_gt: np.ndarray) -> PoseErrors:
         return FAILED
     P_diff = invert(np.asarray(T_pred, dtype=np.float64)) @ np.asarray(T_gt, dtype=np.float64)
     R = P_diff[:3, :3]
-    rre = float(np.abs(Rotation.from_matrix(R).as_euler("xzy", degrees=True)).sum())
+    rre = float(np.abs(xzy_euler_deg(R)).sum())
     cos = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
     return PoseErrors(float(np.linalg.norm(P_diff[:3, 3])), rre, float(np.degrees(np.arccos(cos))))
+
+
+def xzy_euler_deg(R: np.ndarray) -> np.ndarray:
+    """scipy's extrinsic 'xzy' angles, as the peers' scripts compute them. At gimbal lock (the z angle at +-90 deg)
+    the split between x and y is not unique; scipy then sets the y angle to 0 and puts the whole remaining rotation
+    in x, with a warning. That is the peers' number too, so it is kept, and the warning (which says nothing the
+    geodesic angle beside it does not) is silenced here rather than left to every caller's output."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Gimbal lock detected", category=UserWarning)
+        return Rotation.from_matrix(R).as_euler("xzy", degrees=True)
 
 
 def success(rte: pd.Series, rre: pd.Series, protocol: Protocol) -> pd.Series:

@@ -366,3 +366,24 @@ def test_quiet_silences_the_written_lines_of_run_and_report(stored, tmp_path):
     report = ["report", str(runs / "kitti-all"), "--out", str(tmp_path / "r.html")]
     assert "written: " in i2pbench(*report, cwd=tmp_path).stderr
     assert "written: " not in i2pbench(*report, "--quiet", cwd=tmp_path).stderr
+
+
+# ---- the suite's own warnings ----
+
+
+def test_rre_at_gimbal_lock_is_the_peers_number_without_a_warning():
+    import warnings
+
+    from scipy.spatial.transform import Rotation
+
+    from i2pbench.metrics import pose_errors
+
+    R = Rotation.from_euler("xzy", [10.0, 90.0, 20.0], degrees=True).as_matrix()  # z at 90 deg: locked
+    T_pred = np.eye(4)
+    T_pred[:3, :3] = R.T  # so that P_diff = inv(T_pred) @ I = R
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        errors = pose_errors(T_pred, np.eye(4))
+    # at the lock only x + y is fixed: scipy gives x = 10 + 20, z = 90, y = 0, so RRE = 30 + 90 + 0
+    assert errors.rre_deg == pytest.approx(120.0, abs=1e-6)
+    assert errors.geodesic_deg == pytest.approx(np.degrees(Rotation.from_matrix(R).magnitude()))

@@ -177,4 +177,4 @@ class RegressionMatcher(Matcher):
 
     def loss(self, frame, kp2d, kp3d, features):
         loss = ((features.desc2d - 1.0) ** 2).mean()
-        return loss, {"mse": float(loss)}
+        return loss, {"mse": float(loss.detach())}
