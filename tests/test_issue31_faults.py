@@ -387,3 +387,37 @@ def test_rre_at_gimbal_lock_is_the_peers_number_without_a_warning():
     # at the lock only x + y is fixed: scipy gives x = 10 + 20, z = 90, y = 0, so RRE = 30 + 90 + 0
     assert errors.rre_deg == pytest.approx(120.0, abs=1e-6)
     assert errors.geodesic_deg == pytest.approx(np.degrees(Rotation.from_matrix(R).magnitude()))
+
+
+# ---- a full disk under the runs folder ----
+
+
+def test_a_full_disk_is_one_error_marks_the_invocation_failed_and_keeps_finished_frames(tmp_path, monkeypatch, capsys):
+    import errno
+
+    from i2pbench.cli import main
+    from i2pbench.runs import store as store_module
+    from i2pbench.runs.invocation import history
+
+    if not KITTI.is_dir():
+        pytest.skip("real KITTI frames not found")
+    real, calls = store_module.pq.write_table, []
+
+    def write_table(table, where, **kwargs):
+        calls.append(where)
+        if len(calls) > 2:  # two frames fit, the third finds the disk full half-way
+            Path(where).write_bytes(b"PAR1")
+            raise OSError(errno.ENOSPC, "No space left on device", str(where))
+        return real(table, where, **kwargs)
+
+    monkeypatch.setattr(store_module.pq, "write_table", write_table)
+    runs = tmp_path / "runs"
+    args = ["run", "--dataset", "kitti", "--split", "all", "--data-root", str(KITTI_ROOT), *CLASSIC, "--frames", "4"]
+    assert main([*args, "--runs-dir", str(runs), "--quiet"]) == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    frames = runs / "kitti-all" / "frames"
+    assert error.startswith(f"i2pbench: error: {calls[2]}: No space left on device while storing results;")
+    assert f"marked failed; 2 finished frame record(s) kept in {frames}" in error
+    (meta,) = history(runs / "kitti-all")
+    assert meta["status"] == "failed" and "No space left on device" in meta["error"]
+    assert len(list(frames.glob("*.parquet"))) == 2 and not list(frames.glob(".*.tmp"))

@@ -225,7 +225,10 @@ def run(args: argparse.Namespace) -> int:
     store = _open_store(Path(args.runs_dir) / name)
     invocation = Invocation(store.root, _meta(args, threads, protocols, dataset, frame_ids, combinations))
     start = time.perf_counter()
-    records = _run_grid(registry, combinations, dataset, frame_ids, protocols, store, invocation.id, args)
+    try:
+        records = _run_grid(registry, combinations, dataset, frame_ids, protocols, store, invocation.id, args)
+    except OSError as exc:  # the store's disk full or gone read-only: frames written so far stay
+        raise _store_failed(exc, store, invocation) from None
     board = leaderboard.build(records, protocols[0])
     invocation.finish(**_summary(records, board, invocation.id, time.perf_counter() - start))
     print(leaderboard.to_markdown(board))  # first: a leaderboard that cannot be written is still seen
@@ -234,6 +237,20 @@ def run(args: argparse.Namespace) -> int:
     paths = _write_board(board, records, stem, store.root, summary)
     progress.note(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store.root}")
     return 0
+
+
+def _store_failed(exc: OSError, store, invocation) -> Exception:
+    """the one error line of a run whose results could not be stored; the invocation is marked failed (when its
+    record can still be written) and every finished frame is kept, so the same command resumes."""
+    from ..errors import I2PBenchError
+
+    marked = invocation.fail(f"{type(exc).__name__}: {exc}")
+    kept = len(list(store.frames_dir.glob("*.parquet")))
+    return I2PBenchError(
+        f"{exc.filename or store.root}: {exc.strerror or exc} while storing results; invocation {invocation.id} "
+        f"{'marked failed' if marked else 'could not be marked failed'}; {kept} finished frame record(s) kept in "
+        f"{store.frames_dir}, so the same command resumes once the problem is fixed"
+    )
 
 
 def _protocols(registry, base, args: argparse.Namespace, dataset, frame_ids: list[str]) -> list:

@@ -36,6 +36,15 @@ class Invocation:
         self.meta.update(status="finished", finished=_now().isoformat(), **extra)
         self._write()
 
+    def fail(self, error: str) -> bool:
+        """Mark the run failed (a full disk, say); False when even that cannot be written."""
+        self.meta.update(status="failed", finished=_now().isoformat(), error=error)
+        try:
+            self._write()
+        except I2PBenchError:
+            return False
+        return True
+
     def _write(self) -> None:
         folder = self.path.parent
         if folder.exists() and not folder.is_dir():
