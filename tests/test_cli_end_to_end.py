@@ -30,8 +30,7 @@ def test_oracle_run_on_real_kitti_frames_is_fully_accurate(shared_data, tmp_path
 
 def test_by_default_the_leaderboard_goes_under_runs_not_into_the_committed_leaderboards(shared_data, tmp_path):
     cmd = [sys.executable, "-m", "i2pbench.cli", "run", "--matcher", "oracle", "--dataset", "kitti", "--split", "all",
-           "--data-root", str(shared_data / "kitti_odometry"), "--frames", "2", "--threads", "1",
-           "--quiet"]  # fmt: skip
+           "--data-root", str(shared_data / "kitti_odometry"), "--frames", "2", "--threads", "1"]  # fmt: skip
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     boards = tmp_path / "runs" / "leaderboards"
