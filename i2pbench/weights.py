@@ -110,6 +110,24 @@ def import_weights(registry: Any, importer: str, source: str | Path, out: str | 
     return save_checkpoint(out, pipeline, trained_on=imported.trained_on, imported_from=origin)
 
 
+def load_init(module: torch.nn.Module, path: str | Path) -> dict[str, str]:
+    """Initialise a learned stage from a plain state dict of its own keys (e.g. Magic Leap's `superpoint_v1.pth` for
+    a SuperPoint encoder), strictly: a missing, unexpected or misshaped key is refused by name. -> what to record."""
+    import torch
+
+    path = Path(path)
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise WeightsError(f"{path} is not a readable torch file: {exc}") from exc
+    state = state.get("state_dict", state) if isinstance(state, dict) else state
+    try:
+        module.load_state_dict(state)
+    except (RuntimeError, TypeError, AttributeError) as exc:
+        raise WeightsError(f"{path} does not initialise {getattr(module, 'label', module)}: {exc}") from exc
+    return {"file": path.name, "sha256": file_digest(path)}
+
+
 def file_digest(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 

@@ -192,3 +192,22 @@ def test_reference_untied_layer_fails(official_file, reference):
     stages["exchanger"].layers = torch.nn.ModuleList([Untied(0), *layers_copy[1:]])
     wrong = reference_forward(stages, reference[0])
     assert relative_error(wrong["gnn3d"], reference[1]["gnn3d"]) > 100 * RELATIVE
+
+
+def test_reference_superpoint_init_takes_magic_leaps_keys(official_file, tmp_path):
+    """`train --init-2d superpoint_v1.pth`: Magic Leap's keys are the official encoder2d's own (conv1a..convDb, the
+    authors load that file into it: models/superpoint.py:137-138); a file missing one is refused by name."""
+    from i2pbench.errors import WeightsError
+    from i2pbench.weights import load_init
+
+    official = torch.load(official_file, weights_only=True)
+    magic_leap = {k.removeprefix("superpoint."): v for k, v in official.items() if k.startswith("superpoint.")}
+    torch.save(magic_leap, tmp_path / "superpoint_v1.pth")
+    encoder = official_stages()["encoder2d"]
+    origin = load_init(encoder, tmp_path / "superpoint_v1.pth")
+    assert origin["file"] == "superpoint_v1.pth" and len(origin["sha256"]) == 64
+    assert torch.equal(encoder.convDb.weight, magic_leap["convDb.weight"])
+    del magic_leap["convPb.bias"]
+    torch.save(magic_leap, tmp_path / "broken.pth")
+    with pytest.raises(WeightsError, match="convPb.bias"):
+        load_init(encoder, tmp_path / "broken.pth")

@@ -45,6 +45,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     add_split_options(p)  # for the train and val splits of --dataset
     p.add_argument(
+        "--init-2d",
+        metavar="FILE",
+        help="initialise the learned encoder2d from a state dict of its own keys (e.g. superpoint_v1.pth)",
+    )
+    p.add_argument(
         "--out",
         required=True,
         help="checkpoint path, outside the installed packages; training resumes from it when it exists with its "
@@ -216,6 +221,17 @@ def _combination(registry, args: argparse.Namespace):
     return expand(bases, choices, parse_conf_overrides(args.conf), registry)[0]
 
 
+def _init_2d(pipeline, path: str) -> dict:
+    """--init-2d: the encoder2d loaded from `path`, and the record of it for the checkpoint."""
+    from ..errors import I2PBenchError
+    from ..weights import load_init
+
+    stage = pipeline.learned_modules().get("encoder2d")
+    if stage is None:
+        raise I2PBenchError("--init-2d needs a learned encoder2d in the combination")
+    return {"init_2d": load_init(stage, path)}
+
+
 def run(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
@@ -235,6 +251,7 @@ def run(args: argparse.Namespace) -> int:
     train_set, val_set, mix = _datasets(registry, args, mix_specs, val_spec)
     torch.manual_seed(args.seed)  # initial weights: two runs with one seed start (and end) alike
     pipeline = Pipeline.build(registry, _combination(registry, args))
+    init = _init_2d(pipeline, args.init_2d) if args.init_2d else {}
     config = TrainConfig(
         steps=args.steps,
         batch_size=args.batch_size,
@@ -286,7 +303,9 @@ def run(args: argparse.Namespace) -> int:
 
     log = Path(args.log) if args.log else out.with_name(out.name + ".log.jsonl")
     board = Path(args.tensorboard) if args.tensorboard else None
-    trainer.run(training_meta(train_set, config, trainer.dist.world, mix), report, log=log, tensorboard=board)
+    trainer.run(
+        {**training_meta(train_set, config, trainer.dist.world, mix), **init}, report, log=log, tensorboard=board
+    )
     bar.close()
     if main:
         print(f"checkpoint: {args.out} (step {trainer.step}); validation: {trainer.validation}", file=sys.stderr)
