@@ -92,5 +92,6 @@ def test_the_ablation_preset_puts_aliked_in_each_methods_row():
     encoders = [row["encoder2d"] for row in rows]
     assert encoders == ["superpoint-cnn", "aliked", "aliked", "corri2p-resnet", "aliked"]
     assert rows[2]["confs"]["encoder2d"] == {"descriptor_dim": 128, "train_backbone": True}
+    assert rows[1]["variant"] == "cpu-size" and rows[2]["variant"] == "cpu-size, fine-tuned"  # two rows on a board
     assert rows[1]["confs"]["exchanger"] == rows[0]["confs"]["exchanger"]  # the other stages keep their size
     assert rows[4]["exchanger"] == "corri2p-exchange"

@@ -23,11 +23,13 @@ def register_encoders_2d(register: Register) -> None:
     register("i2pbench_pretrained.aliked:AlikedEncoder", name="aliked")
 
 
-def _swap_encoder(row: dict[str, Any], conf: dict[str, Any]) -> dict[str, Any]:
-    """a method's row with its image encoder replaced by `aliked` at `conf`, the other stages' pins kept."""
+def _swap_encoder(row: dict[str, Any], conf: dict[str, Any], variant: str = "") -> dict[str, Any]:
+    """a method's row with its image encoder replaced by `aliked` at `conf`, the other stages' pins kept; `variant`
+    labels a row whose pinned conf alone differs from another's (pinned confs are not in the row's label)."""
     out = copy.deepcopy(row)
     out["encoder2d"] = "aliked"
     out.setdefault("confs", {})["encoder2d"] = dict(conf)
+    out["variant"] = variant or out.get("variant", "")
     return out
 
 
@@ -62,7 +64,7 @@ def register_presets(register: Register) -> None:
         register("corri2p-aliked", [_swap_encoder(corr, ALIKED)], "CorrI2P (CPU size) on frozen ALIKED-n16")
     rows = []
     if edge is not None:
-        rows += [edge, _swap_encoder(edge, ALIKED), _swap_encoder(edge, FINE_TUNED)]
+        rows += [edge, _swap_encoder(edge, ALIKED), _swap_encoder(edge, FINE_TUNED, "cpu-size, fine-tuned")]
     if corr is not None:
         rows += [corr, _swap_encoder(corr, ALIKED)]
     if rows:
