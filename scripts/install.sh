@@ -16,7 +16,7 @@ TORCH=${TORCH:-$(grep -m1 '^torch==' "$LOCK")} || { echo "install.sh: no torch==
 
 if ! ldconfig -p 2>/dev/null | grep -q libusb-1.0.so.0; then  # open3d imports only with libusb present
     if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
-    $SUDO apt-get update -qq && $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
+    $SUDO apt-get update -qq && $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
 fi
 
 if ! command -v chromium >/dev/null 2>&1; then  # headless, renders `i2pbench report` pages in the tests (else skipped)
