@@ -31,6 +31,8 @@ class Dataset:
         super().__init_subclass__(**kwargs)
         if "load" in cls.__dict__:
             cls.load = _failing_as_data_error(cls.__dict__["load"])  # type: ignore[method-assign]
+        if "frame_ids" in cls.__dict__:
+            cls.frame_ids = _utf8_frame_ids(cls.__dict__["frame_ids"])  # type: ignore[method-assign]
 
     def __init__(self, split: str, conf: Mapping[str, Any] | None = None) -> None:
         if split not in self.splits:
@@ -97,6 +99,9 @@ def _failing_as_data_error(load: Callable[[Any, str], SensorFrame]) -> Callable[
 
     @functools.wraps(load)
     def wrapped(self: Dataset, frame_id: str) -> SensorFrame:
+        raw = self.__dict__.get(NOT_UTF8, {}).get(frame_id)
+        if raw is not None:
+            raise DataError(_not_utf8(self, frame_id, raw))
         try:
             return load(self, frame_id)
         except I2PBenchError:
@@ -105,3 +110,42 @@ def _failing_as_data_error(load: Callable[[Any, str], SensorFrame]) -> Callable[
             raise DataError(f"dataset {self.name!r} frame {frame_id!r}: {type(exc).__name__}: {exc}") from exc
 
     return wrapped
+
+
+NOT_UTF8 = "_frame_ids_not_utf8"  # instance attribute: a listed id as shown -> the id as the file system gave it
+
+
+def printable(text: str) -> str:
+    """`text` as UTF-8 can hold it: a byte of a file name that is no UTF-8 (a surrogate in the str os.listdir made
+    of it) becomes `\\xNN`, as `ls -b` shows it."""
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:  # a lone surrogate that is no escaped byte (e.g. from JSON's \\ud800)
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
+def _utf8_frame_ids(frame_ids: Callable[[Any], list[str]]) -> Callable[[Any], list[str]]:
+    """Wrap a subclass's `frame_ids` so that every id is UTF-8: an id made of a file name that is not (fault 9 of
+    issue 31) is listed as `printable` shows it and remembered, so that `load` fails that one frame naming the file,
+    while cache keys, Parquet records and invocation records, all UTF-8, never meet the raw name (it ended the whole
+    run with a UnicodeEncodeError)."""
+
+    @functools.wraps(frame_ids)
+    def wrapped(self: Dataset) -> list[str]:
+        ids = frame_ids(self)
+        shown = [printable(i) for i in ids]
+        for i, s in zip(ids, shown, strict=True):
+            if s != i:
+                self.__dict__.setdefault(NOT_UTF8, {})[s] = i
+        return shown
+
+    return wrapped
+
+
+def _not_utf8(dataset: Dataset, frame_id: str, raw: str) -> str:
+    files = [printable(str(p)) for p in dataset.frame_files(raw) if printable(str(p)) != str(p)]
+    named = ", ".join(files) if files else f"frame {frame_id}"
+    return (
+        f"dataset {dataset.name!r} frame '{frame_id}': the file name is not UTF-8 ({named}), which results cannot "
+        "store; rename it"
+    )
