@@ -16,7 +16,7 @@ from collections.abc import Collection, Sequence
 from typing import NoReturn
 
 from . import __version__
-from .errors import I2PBenchError
+from .errors import I2PBenchError, os_problem
 
 COMMANDS = (
     "plugins",
@@ -120,6 +120,9 @@ def _run(argv: Sequence[str]) -> int:
         return importlib.import_module(command_module(args.command)).run(args)
     except I2PBenchError as exc:
         print(f"i2pbench: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # the machine's, not a bug (an unwritable HOME or folder, a full disk): the path at fault
+        print(f"i2pbench: error: {os_problem(exc)}", file=sys.stderr)
         return 2
 
 

@@ -9,8 +9,9 @@ import shutil
 from pathlib import Path
 
 import pandas as pd
-from test_cli_errors import i2pbench
-from test_data_bad_input import KITTI, needs_kitti
+import pytest
+from test_cli_errors import assert_refused, i2pbench
+from test_data_bad_input import KITTI, RECORDS, needs_kitti, needs_nuscenes
 
 CLASSIC = ["--extractor", "canny", "--extractor3d", "depth", "--matcher", "oracle", "--solver", "epnp-ransac"]
 
@@ -55,3 +56,74 @@ def test_a_frame_file_name_that_is_not_utf8_fails_that_frame_named_and_the_run_g
     )
     again = i2pbench(*args, "--runs-dir", str(runs), "--quiet", cwd=tmp_path)  # every frame, the failed one too,
     assert again.returncode == 0 and again.stdout == done.stdout  # comes back from the cache as stored
+
+
+# ---- fault 10: unwritable HOME, synthetic root, data synth --root, nuScenes dataroot, --out: one error line each ----
+# The suite may run as root, which writes through any mode bits; a path under a regular file is unwritable for root
+# too (NotADirectoryError / FileExistsError, the same OSError a read-only folder gives).
+
+
+@pytest.fixture
+def blocked(tmp_path) -> Path:
+    """a regular file: nothing can be written under it."""
+    path = tmp_path / "file"
+    path.write_text("")
+    return path
+
+
+def test_an_unwritable_home_is_one_error_naming_the_cache_folder_and_xdg_cache_home(tmp_path, blocked):
+    done = i2pbench("run", "--frames", "1", "--runs-dir", str(tmp_path / "runs"), cwd=tmp_path,
+                    env={"HOME": str(blocked), "XDG_CACHE_HOME": ""})  # fmt: skip
+    cache = blocked / ".cache" / "i2pbench"
+    assert_refused(done, "dataset 'synthetic' (its default root)", f"{cache}/synthetic-v", "Not a directory",
+                   f"in the i2pbench cache folder {cache}", "set XDG_CACHE_HOME to a writable folder")  # fmt: skip
+    assert not (tmp_path / "runs").exists()
+
+
+def test_an_unwritable_synthetic_root_is_one_error_naming_data_root(tmp_path, blocked):
+    done = i2pbench("run", "--frames", "1", "--data-root", str(blocked / "syn"), cwd=tmp_path)
+    assert_refused(done, f"dataset 'synthetic' --data-root {blocked / 'syn'}", f"{blocked / 'syn'}/sequences")
+
+
+def test_data_synth_into_an_unwritable_root_is_one_error(tmp_path, blocked):
+    done = i2pbench("data", "synth", "--root", str(blocked / "syn"), "--train", "1", "--val", "1", "--test", "1",
+                    cwd=tmp_path)  # fmt: skip
+    assert_refused(done, f"data synth --root {blocked / 'syn'}: could not write the frames", "Not a directory")
+
+
+@needs_nuscenes
+def test_a_nuscenes_dataroot_into_an_unwritable_folder_is_one_error(tmp_path, blocked):
+    done = i2pbench("data", "nuscenes-dataroot", "--records", str(RECORDS), "--out", str(blocked / "nus"),
+                    cwd=tmp_path)  # fmt: skip
+    assert_refused(done, f"data nuscenes-dataroot --out {blocked / 'nus'}: could not write it", "Not a directory")
+
+
+@needs_kitti
+def test_an_unwritable_out_is_one_error_for_run_and_table_and_nothing_computed_is_lost(tmp_path, blocked):
+    root = _kitti_frames(tmp_path / "kitti", 1)
+    runs = tmp_path / "runs"
+    args = ["run", "--dataset", "kitti", "--split", "all", "--data-root", str(root), *CLASSIC, "--runs-dir", str(runs)]
+    done = i2pbench(*args, "--out", str(blocked / "board"), cwd=tmp_path)
+    assert_refused(done, f"could not write the leaderboard into {blocked}", "rerun with --out STEM")
+    assert "| kitti | all | canny > depth > oracle > epnp-ransac |" in done.stdout  # printed before the error
+    assert len(list((runs / "kitti-all" / "frames").glob("*.parquet"))) == 1  # the frame is kept
+    board = tmp_path / "board"
+    assert i2pbench(*args, "--out", str(board), "--quiet", cwd=tmp_path).returncode == 0
+    table = i2pbench("table", "--preset", "classic-oracle", f"KITTI={board}.csv", "--out", str(blocked / "t"),
+                     cwd=tmp_path)  # fmt: skip
+    assert_refused(table, f"--out {blocked / 't'}: could not write the table", f"{blocked}: a file is there")
+    assert "KITTI" in table.stdout  # the table itself was printed
+
+
+def test_an_os_error_reaching_the_command_line_is_one_line_naming_the_path(monkeypatch, capsys, tmp_path):
+    import errno
+
+    from i2pbench import cli
+    from i2pbench.commands import plugins
+
+    def fails(args):
+        raise PermissionError(errno.EACCES, "Permission denied", str(tmp_path / "x"))
+
+    monkeypatch.setattr(plugins, "run", fails)
+    assert cli.main(["plugins"]) == 2
+    assert capsys.readouterr().err == f"i2pbench: error: {tmp_path / 'x'}: Permission denied\n"

@@ -38,12 +38,17 @@ def run(args: argparse.Namespace) -> int:
     if args.data_command == "nuscenes-dataroot":
         return nuscenes_dataroot(args)
     from ..data.synthetic.dataset import SyntheticStreets, generate
+    from ..errors import I2PBenchError, os_problem
 
     frames = dict(SyntheticStreets.default_conf["frames"])
     frames.update({k: v for k, v in (("train", args.train), ("val", args.val), ("test", args.test)) if v is not None})
-    root = generate(
-        args.root, frames["train"], frames["val"], frames["test"], args.seed, args.workers, style=args.style
-    )
+    try:
+        root = generate(
+            args.root, frames["train"], frames["val"], frames["test"], args.seed, args.workers, style=args.style
+        )
+    except OSError as exc:
+        where = f"--root {args.root}" if args.root else "(the cache folder; --root chooses another)"
+        raise I2PBenchError(f"data synth {where}: could not write the frames: {os_problem(exc)}") from None
     style = "" if args.style == "default" else f", style {args.style}; use --data-conf style={args.style}"
     print(f"synthetic dataset ready at {root} ({frames}{style})", file=sys.stderr)
     return 0
@@ -54,11 +59,14 @@ def nuscenes_dataroot(args: argparse.Namespace) -> int:
 
     from ..data.nuscenes import VERSIONS
     from ..data.nuscenes_dataroot import build_dataroot
-    from ..errors import DataError
+    from ..errors import DataError, os_problem
 
     if args.version not in VERSIONS:
         raise DataError(f"--version {args.version!r}: choose one of {list(VERSIONS)}")
-    sizes = build_dataroot([Path(d) for d in args.records], Path(args.out), args.version, copy=args.copy)
+    try:
+        sizes = build_dataroot([Path(d) for d in args.records], Path(args.out), args.version, copy=args.copy)
+    except OSError as exc:
+        raise DataError(f"data nuscenes-dataroot --out {args.out}: could not write it: {os_problem(exc)}") from None
     print(
         f"nuScenes dataroot ready at {args.out}: {args.version} with {sizes['sample']} sample(s) of "
         f"{sizes['scene']} scene(s); use --dataset nuscenes --data-root {args.out}",

@@ -217,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
     registry = default_registry()
     combinations = _combinations(registry, args)
     dataset = open_dataset(registry, args)
-    frame_ids = dataset.frame_ids()[: args.frames]
+    frame_ids = _frame_ids(dataset, args)
     if not frame_ids:
         raise DataError(f"dataset {dataset.name!r} split {dataset.split!r} has no frames to run")
     protocols = _protocols(registry, Protocol(seed=args.seed), args, dataset, frame_ids)
@@ -237,6 +237,20 @@ def run(args: argparse.Namespace) -> int:
     paths = _write_board(board, records, stem, store.root, summary)
     progress.note(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store.root}")
     return 0
+
+
+def _frame_ids(dataset, args: argparse.Namespace) -> list[str]:
+    """The split's first --frames frames; a root that cannot be read or written (the synthetic dataset generates its
+    frames there on first use) is one error naming it."""
+    from ..errors import DataError, os_problem
+
+    try:
+        return dataset.frame_ids()[: args.frames]
+    except OSError as exc:
+        where = f"--data-root {args.data_root}" if args.data_root else "(its default root)"
+        raise DataError(
+            f"dataset {dataset.name!r} {where}: could not list or make its frames: {os_problem(exc)}"
+        ) from None
 
 
 def _store_failed(exc: OSError, store, invocation) -> Exception:

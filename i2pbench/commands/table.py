@@ -30,7 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import comparison
     from ..compare import read_board
-    from ..errors import I2PBenchError
+    from ..errors import I2PBenchError, os_problem
     from ..plugins import default_registry
 
     names = [name for name, _ in args.boards]
@@ -42,6 +42,11 @@ def run(args: argparse.Namespace) -> int:
     text = comparison.to_text(table, rows, dict(args.boards))
     print(text)
     if args.out:
-        written = comparison.write(table, text, args.out)
+        try:
+            written = comparison.write(table, text, args.out)
+        except OSError as exc:
+            raise I2PBenchError(
+                f"--out {args.out}: could not write the table, printed above: {os_problem(exc)}"
+            ) from None
         print("written: " + ", ".join(map(str, written)))
     return 0
