@@ -34,11 +34,11 @@ def test_by_default_the_leaderboard_goes_under_runs_not_into_the_committed_leade
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     boards = tmp_path / "runs" / "leaderboards"
-    written = ["kitti-all.csv", "kitti-all.env.json", "kitti-all.md", "kitti-all.parquet"]
-    assert sorted(p.name for p in boards.iterdir()) == written
-    assert pd.read_csv(boards / "kitti-all.csv").iloc[0]["frames"] == 2
+    written = ["kitti-all-oracle.csv", "kitti-all-oracle.env.json", "kitti-all-oracle.md", "kitti-all-oracle.parquet"]
+    assert sorted(p.name for p in boards.iterdir()) == written  # named by what was run: --matcher oracle
+    assert pd.read_csv(boards / "kitti-all-oracle.csv").iloc[0]["frames"] == 2
     assert not (tmp_path / "leaderboards").exists()
-    assert f"written: {Path('runs/leaderboards/kitti-all.csv')}" in done.stderr
+    assert f"written: {Path('runs/leaderboards/kitti-all-oracle.csv')}" in done.stderr
 
 
 def test_an_unknown_component_is_refused_with_the_closest_name(tmp_path):

@@ -92,7 +92,9 @@ def test_following_the_tutorial_installs_lists_runs_checks_and_removes_the_plugi
     assert "example 0.1.0 (i2pbench-example)" in listing
     assert re.search(r"extractor2d\s+harris", listing) and re.search(r"extractor3d\s+curvature", listing)
     assert "harris > curvature > oracle > epnp-ransac" in output_of("i2pbench run")
-    board = pd.read_csv(work / "runs" / "leaderboards" / "kitti-all.csv")  # a user's runs, not the repo's boards
+    board = pd.read_csv(
+        work / "runs" / "leaderboards" / "kitti-all-harris-curvature-oracle-epnp-ransac.csv"
+    )  # a user's runs, not the repo's boards
     row = board.set_index("combination").loc["harris > curvature > oracle > epnp-ransac"]
     assert (row["extractor2d"], row["extractor3d"], row["frames"]) == ("harris", "curvature", 2)
     assert "extractor2d 'harris' conforms" in output_of("check_component")

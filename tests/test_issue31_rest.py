@@ -127,3 +127,70 @@ def test_an_os_error_reaching_the_command_line_is_one_line_naming_the_path(monke
     monkeypatch.setattr(plugins, "run", fails)
     assert cli.main(["plugins"]) == 2
     assert capsys.readouterr().err == f"i2pbench: error: {tmp_path / 'x'}: Permission denied\n"
+
+
+# ---- first contact 2: a run's board never replaces another's ----
+
+
+@pytest.mark.parametrize(
+    ("options", "name"),
+    [
+        ([], "synthetic-test"),
+        (["--preset", "default"], "synthetic-test"),
+        (["--preset", "paper-table-1"], "synthetic-test-paper-table-1"),
+        (["--preset", "baselines,edge-ablation"], "synthetic-test-baselines+edge-ablation"),
+        (["--grid", "leaderboards/golden/classic.yaml"], "synthetic-test-classic"),
+        (["--matcher", "oracle", "--solver", "epnp-ransac,poselib"], "synthetic-test-oracle-epnp-ransac+poselib"),
+        (["--weights", "untrained"], "synthetic-test-weights-untrained"),
+        (["--corruption", "fog:3"], "synthetic-test-fog_3"),
+        (["--robustness", "--severities", "1,3"], "synthetic-test-robustness-s1+3"),
+        (["--seed", "2"], "synthetic-test-seed2"),
+    ],
+)
+def test_the_default_board_is_named_by_what_was_run(options, name):
+    from i2pbench.cli import build_parser
+    from i2pbench.commands.run import board_name
+
+    assert board_name("synthetic-test", build_parser(("run",)).parse_args(["run", *options])) == name
+
+
+def test_conf_overrides_name_their_board_by_a_hash_of_the_values():
+    from i2pbench.cli import build_parser
+    from i2pbench.commands.run import board_name
+
+    def name(*conf: str) -> str:
+        args = ["run", *[a for c in conf for a in ("--conf", c)]]
+        return board_name("kitti-all", build_parser(("run",)).parse_args(args))
+
+    assert name("solver.ransac_iters=10").startswith("kitti-all-conf-")
+    assert name("solver.ransac_iters=10") != name("solver.ransac_iters=20")
+    assert name("a.b=1", "c.d=2") == name("c.d=2", "a.b=1")  # the order they are given in does not matter
+    many = build_parser(("run",)).parse_args(["run", "--extractor", ",".join(["canny"] * 60)])
+    assert len(board_name("x", many)) <= 120  # a file name, not the whole grid
+
+
+@needs_kitti
+def test_a_grid_run_does_not_replace_the_board_of_a_run_of_other_stages(tmp_path):
+    from i2pbench.runs import board_env  # a board in the default layout is still traced to its run's store
+
+    root = _kitti_frames(tmp_path / "kitti", 1)
+    grid = tmp_path / "mine.yaml"
+    grid.write_text("base: {extractor2d: canny, extractor3d: depth, matcher: oracle}\ngrid: {solver: [poselib]}\n")
+    args = ["run", "--dataset", "kitti", "--split", "all", "--data-root", str(root), "--runs-dir", "runs"]
+    first = i2pbench(*args, *CLASSIC, cwd=tmp_path)
+    assert first.returncode == 0, first.stderr
+    boards = tmp_path / "runs" / "leaderboards"
+    classic = boards / "kitti-all-canny-depth-oracle-epnp-ransac.csv"
+    assert f"written: {Path('runs/leaderboards/kitti-all-canny-depth-oracle-epnp-ransac.csv')}" in first.stderr
+    before = classic.read_bytes()
+    second = i2pbench(*args, "--grid", str(grid), cwd=tmp_path)
+    assert second.returncode == 0, second.stderr
+    assert f"written: {Path('runs/leaderboards/kitti-all-mine.csv')}" in second.stderr
+    assert classic.read_bytes() == before  # the first board is still there, unchanged
+    assert list(pd.read_csv(boards / "kitti-all-mine.csv")["combination"]) == ["canny > depth > oracle > poselib"]
+    out = tmp_path / "chosen"  # --out STEM still writes where it is told
+    assert i2pbench(*args, *CLASSIC, "--out", str(out), "--quiet", cwd=tmp_path).returncode == 0
+    written = sorted(p.name for p in tmp_path.glob("chosen*"))
+    assert written == ["chosen.csv", "chosen.env.json", "chosen.md", "chosen.parquet"]
+    assert board_env._store_of(boards / "kitti-all-mine.csv") == tmp_path / "runs" / "kitti-all"
+

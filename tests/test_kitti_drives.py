@@ -118,7 +118,7 @@ def test_run_with_a_fold_runs_its_test_scenes_into_the_folds_own_board(shared_da
     expected = KittiDrives("test", {"root": str(shared_data), "fold": "4/5"}).frame_ids()
     frames = pd.concat(map(pd.read_parquet, (tmp_path / "kitti-drives-test-fold4of5" / "frames").glob("*.parquet")))
     assert sorted(frames["frame_id"]) == sorted(expected)
-    assert (tmp_path / "leaderboards" / "kitti-drives-test-fold4of5.md").is_file()
+    assert (tmp_path / "leaderboards" / "kitti-drives-test-fold4of5-random-random-oracle-epnp-ransac.md").is_file()
     refused = cli("run", "--dataset", "kitti", "--data-root", str(shared_data / "kitti_real"), "--fold", "1/5",
                   "--matcher", "oracle", "--runs-dir", str(tmp_path), "--quiet")  # fmt: skip
     assert refused.returncode != 0 and "--fold: dataset 'kitti' has no fold config" in refused.stderr

@@ -233,10 +233,33 @@ def run(args: argparse.Namespace) -> int:
     invocation.finish(**_summary(records, board, invocation.id, time.perf_counter() - start))
     print(leaderboard.to_markdown(board))  # first: a leaderboard that cannot be written is still seen
     summary = _robustness(registry, board)
-    stem = Path(args.out or Path(args.runs_dir) / "leaderboards" / name)
+    stem = Path(args.out or Path(args.runs_dir) / "leaderboards" / board_name(name, args))
     paths = _write_board(board, records, stem, store.root, summary)
     progress.note(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store.root}")
     return 0
+
+
+def board_name(store_name: str, args: argparse.Namespace) -> str:
+    """The default board's name: the store's (<dataset>-<split>) and what was run, so a run's board never replaces
+    another's (issue 31: `--preset paper-table-1` replaced the default board). The default pipeline keeps the bare
+    name; a preset, a grid file, stage choices, --conf, --weights, corruptions and a seed other than 0 each add a
+    part, e.g. synthetic-test-paper-table-1, kitti-all-classic, kitti-all-canny-depth-oracle-epnp-ransac."""
+    import hashlib
+    import re
+
+    parts = [p.replace(",", "+") for p in [args.preset or ""] if p and p != "default"]
+    parts += [Path(args.grid).stem] if args.grid else []
+    parts += ["+".join(getattr(args, kind)) for kind in STAGE_OPTIONS if getattr(args, kind)]
+    if args.conf:
+        parts.append("conf-" + hashlib.sha256("\n".join(sorted(args.conf)).encode()).hexdigest()[:6])
+    parts += [f"weights-{Path(args.weights).stem}"] if args.weights != "auto" else []
+    parts += ["robustness"] if args.robustness else ["+".join(args.corruption)] if args.corruption else []
+    parts += ["s" + "+".join(map(str, args.severities))] if args.severities else []
+    parts += [f"seed{args.seed}"] if args.seed else []
+    name = re.sub(r"[^A-Za-z0-9._+=-]", "_", "-".join([store_name, *parts]))
+    if len(name) > 120:  # a file name has room for 255 bytes; keep it readable and still unique
+        name = f"{name[:110]}-{hashlib.sha256(name.encode()).hexdigest()[:8]}"
+    return name
 
 
 def _frame_ids(dataset, args: argparse.Namespace) -> list[str]:

@@ -3,7 +3,8 @@
 A board's rows come from the invocations whose frames it holds (a rerun reuses cached frames), so the record lists
 each of them: its id, environment (package versions, python, git commit, machine) and dataset identity (a synthetic
 one names its generator_version). A board written before these records existed is traced to its run's store when it
-sits where `i2pbench run` puts it by default (`<runs>/leaderboards/<name>.csv` beside `<runs>/<name>/`).
+sits where `i2pbench run` puts it by default (`<runs>/leaderboards/<name>[-<what was run>].csv` beside
+`<runs>/<name>/`).
 """
 
 from __future__ import annotations
@@ -58,11 +59,24 @@ def read(board_path: str | Path, board: pd.DataFrame) -> dict[str, Any] | None:
             return json.loads(sidecar.read_text())
         except (OSError, ValueError):
             return None
-    store = board_path.parent.parent / board_path.stem
-    if board_path.parent.name != "leaderboards" or not (store / "invocations").is_dir():
+    store = _store_of(board_path)
+    if store is None:
         return None
     found = record(store, _invocations_of(store, board))
     return found if found["invocations"] else None
+
+
+def _store_of(board_path: Path) -> Path | None:
+    """The run's store of a board in the default layout: `<runs>/<name>/` for `<runs>/leaderboards/<name>[-<what was
+    run>].csv` (the longest such name that is a store)."""
+    if board_path.parent.name != "leaderboards":
+        return None
+    parts = board_path.stem.split("-")
+    for n in range(len(parts), 0, -1):
+        store = board_path.parent.parent / "-".join(parts[:n])
+        if (store / "invocations").is_dir():
+            return store
+    return None
 
 
 def _invocations_of(store: Path, board: pd.DataFrame) -> set[str]:
