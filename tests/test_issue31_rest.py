@@ -194,3 +194,23 @@ def test_a_grid_run_does_not_replace_the_board_of_a_run_of_other_stages(tmp_path
     assert written == ["chosen.csv", "chosen.env.json", "chosen.md", "chosen.parquet"]
     assert board_env._store_of(boards / "kitti-all-mine.csv") == tmp_path / "runs" / "kitti-all"
 
+
+# ---- first contact 4: the progress bar names what runs; reuse of the cache is said ----
+
+
+@needs_kitti
+def test_the_progress_bar_names_the_grid_and_the_combination_and_cache_reuse_is_counted(tmp_path):
+    root = _kitti_frames(tmp_path / "kitti", 2)
+    args = ["run", "--dataset", "kitti", "--split", "all", "--data-root", str(root), "--runs-dir", "runs"]
+    args += ["--extractor", "canny,lsd", "--extractor3d", "depth", "--matcher", "oracle", "--solver", "epnp-ransac"]
+    first = i2pbench(*args, cwd=tmp_path)
+    assert first.returncode == 0, first.stderr
+    bar = first.stderr.replace("\r", "\n")
+    assert "2 combination(s) x 2 frames: 100%|" in bar and "4/4" in bar
+    assert "canny > depth > oracle > epnp-ransac]" in bar and "lsd > depth > oracle > epnp-ransac]" in bar
+    assert f"0 of 4 frames reused from the cache in {Path('runs/kitti-all')}\n" in first.stderr
+    more = i2pbench(*[a if a != "canny,lsd" else "canny,lsd,random" for a in args], cwd=tmp_path)
+    assert more.returncode == 0, more.stderr
+    assert "3 combination(s) x 2 frames: 100%|" in more.stderr.replace("\r", "\n")
+    assert f"4 of 6 frames reused from the cache in {Path('runs/kitti-all')}\n" in more.stderr
+    assert "reused" not in i2pbench(*args, "--quiet", cwd=tmp_path).stderr  # --quiet: the board and errors only

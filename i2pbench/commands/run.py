@@ -230,7 +230,9 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:  # the store's disk full or gone read-only: frames written so far stay
         raise _store_failed(exc, store, invocation) from None
     board = leaderboard.build(records, protocols[0])
-    invocation.finish(**_summary(records, board, invocation.id, time.perf_counter() - start))
+    counts = _summary(records, board, invocation.id, time.perf_counter() - start)
+    invocation.finish(**counts)
+    progress.note(f"{counts['reused']} of {len(records)} frames reused from the cache in {store.root}")
     print(leaderboard.to_markdown(board))  # first: a leaderboard that cannot be written is still seen
     summary = _robustness(registry, board)
     stem = Path(args.out or Path(args.runs_dir) / "leaderboards" / board_name(name, args))
@@ -393,12 +395,29 @@ def _run_grid(registry, combinations, dataset, frame_ids, protocols, store, invo
 
     total = len(frame_ids) * len(combinations) * len(protocols)
     executor = executors.make_executor(args.executor, args.workers, args.threads_per_worker, args.address, args.device)
-    with tqdm(total=total, disable=args.quiet, unit="frame", file=sys.stderr, dynamic_ncols=True) as bar:
+    what = f"{len(combinations)} combination(s) x {len(frame_ids)} frames"
+    what += f" x {len(protocols)} conditions" if len(protocols) > 1 else ""
+    with tqdm(total=total, desc=what, disable=args.quiet, unit="frame", file=sys.stderr, dynamic_ncols=True) as bar:
         grids = [
-            _run_protocol(registry, combinations, dataset, frame_ids, p, store, invocation, args, executor, bar.update)
+            _run_protocol(registry, combinations, dataset, frame_ids, p, store, invocation, args, executor, _Bar(bar))
             for p in protocols
         ]
     return pd.concat(grids, ignore_index=True)
+
+
+class _Bar:
+    """The run's progress callable: counts frames on the bar and names the combination running after it."""
+
+    def __init__(self, bar) -> None:
+        self.bar, self.label = bar, ""
+
+    def __call__(self, frames: int) -> None:
+        self.bar.update(frames)
+
+    def describe(self, label: str) -> None:
+        if label != self.label:  # shown at once: the first frame of a combination may take long (its warm-up)
+            self.bar.set_postfix_str(label)
+            self.label = label
 
 
 def _run_protocol(registry, combinations, dataset, frame_ids, protocol, store, invocation, args, executor, progress):

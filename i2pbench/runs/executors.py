@@ -95,11 +95,22 @@ def plan(
 
 
 class Collector:
-    """The driver's side of delivery: writes what workers did not, once per key, and counts progress."""
+    """The driver's side of delivery: writes what workers did not, once per key, and counts progress. A progress
+    callable with a `describe(label)` method is also told the combination of the next frame to compute (in task
+    order: the one running, for a serial run), so a bar can name it."""
 
-    def __init__(self, plan: Plan, store: ResultsStore, progress: Progress | None) -> None:
+    def __init__(self, plan: Plan, store: ResultsStore, progress: Progress | None, labels: Sequence[str] = ()) -> None:
         self.plan, self.store, self.progress = plan, store, progress
         self.computed: set[Slot] = set()
+        self.labels, self.order, self.next = labels, [(j, f) for j, fs in plan.missing.items() for f in fs], 0
+        self._describe()
+
+    def _describe(self) -> None:
+        describe = getattr(self.progress, "describe", None)
+        while self.next < len(self.order) and self.order[self.next] in self.computed:
+            self.next += 1
+        if describe is not None and self.labels and self.next < len(self.order):
+            describe(self.labels[self.order[self.next][0]])
 
     def __call__(self, results: Sequence[Result]) -> None:
         fresh = [r for r in results if (r.job, r.frame_id) not in self.computed]  # a replayed frame is dropped
@@ -110,6 +121,7 @@ class Collector:
             self.computed.add((r.job, r.frame_id))
         if self.progress and fresh:
             self.progress(len(fresh))
+            self._describe()
 
 
 def run_grid(
@@ -173,7 +185,8 @@ def run_plan(
     """Start the executor's workers, run the plan's tasks on them, and stop them."""
     executor.start(work, store)
     try:
-        executor.run(work_plan.tasks(executor.workers, chunk_size), Collector(work_plan, store, progress))
+        collector = Collector(work_plan, store, progress, [job.label for job in work.jobs])
+        executor.run(work_plan.tasks(executor.workers, chunk_size), collector)
     finally:
         executor.close()
     lost = [(j, f) for j, frames in work_plan.missing.items() for f in frames if (j, f) not in work_plan.records]
