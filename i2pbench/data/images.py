@@ -28,6 +28,37 @@ def truncation(data: bytes) -> str | None:
     return None
 
 
+MAX_SIDE = 16384  # px; a camera image past this is no camera's (a 40k x 40k PNG took 7 GB to decode)
+
+
+def header_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) read from a PNG's IHDR or a JPEG's start-of-frame header, without decoding; None otherwise."""
+    if data.startswith(PNG_START) and data[12:16] == b"IHDR":
+        return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if not data.startswith(JPEG_START):
+        return None
+    at = 2
+    while at + 9 <= len(data) and data[at] == 0xFF:
+        marker, length = data[at + 1], int.from_bytes(data[at + 2 : at + 4], "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # a start of frame (not DHT, JPG, DAC)
+            return int.from_bytes(data[at + 7 : at + 9], "big"), int.from_bytes(data[at + 5 : at + 7], "big")
+        at += 2 + length
+    return None
+
+
+def check_fits(path: Path, image: np.ndarray, K: np.ndarray, calib: str | Path) -> None:
+    """Refuse an image whose size does not fit the camera's intrinsics: its principal point must lie in the middle
+    half of the image (a half-size image put it at the right edge and still 'registered', to RTE 3.37 m)."""
+    height, width = image.shape[:2]
+    cx, cy = float(K[0, 2]), float(K[1, 2])
+    if not (width / 4 < cx < 3 * width / 4 and height / 4 < cy < 3 * height / 4):
+        raise DataError(
+            f"{path}: the image is {width} x {height} px, but the intrinsics of {calib} put the principal point at "
+            f"({cx:.1f}, {cy:.1f}), outside its middle half: the image does not fit this calibration (resized or "
+            "cropped?)"
+        )
+
+
 def read_image(path: Path) -> np.ndarray:
     """[H x W x 3] uint8 RGB."""
     if not path.is_file():
@@ -36,6 +67,9 @@ def read_image(path: Path) -> np.ndarray:
     problem = truncation(data)
     if problem:
         raise DataError(f"{path}: {problem}")
+    size = header_size(data)
+    if size is not None and max(size) > MAX_SIDE:
+        raise DataError(f"{path}: the image is {size[0]} x {size[1]} px, past {MAX_SIDE} px a side; not decoding it")
     bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     if bgr is None or bgr.size == 0:
         raise DataError(f"{path}: unreadable or corrupt image")

@@ -19,7 +19,7 @@ from ..types import SensorFrame
 from .base import Dataset
 from .calibration import check_finite, check_intrinsics, check_rotation
 from .ego_motion import around
-from .images import read_image
+from .images import check_fits, read_image
 from .scanlines import recover_rings
 
 SPLIT_SEQUENCES: dict[str, tuple[str, ...]] = {
@@ -171,10 +171,13 @@ def read_frame(
     scan = sequence_dir / "velodyne" / f"{stem}.bin"
     points = read_points(scan)
     K, T = camera_calib(sequence_dir / "calib.txt", camera)
+    image_path = sequence_dir / f"image_{camera}" / f"{stem}.png"
+    image = read_image(image_path)
+    check_fits(image_path, image, K, sequence_dir / "calib.txt")
     return SensorFrame(
         dataset=dataset,
         frame_id=f"{sequence_dir.name}/{stem}",
-        image=read_image(sequence_dir / f"image_{camera}" / f"{stem}.png"),
+        image=image,
         points=points,
         ring=recover_rings(points),
         K=K,

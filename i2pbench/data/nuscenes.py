@@ -22,7 +22,7 @@ from ..types import SensorFrame
 from .base import Dataset
 from .calibration import check_finite, check_intrinsics
 from .ego_motion import velocity
-from .images import read_image
+from .images import check_fits, read_image
 
 CAMERAS = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_FRONT_LEFT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_BACK_RIGHT")
 VERSIONS = ("v1.0-trainval", "v1.0-mini", "v1.0-test")
@@ -295,10 +295,15 @@ class NuScenes(Dataset):
         sweep = self.root / lidar["filename"]
         points, ring = read_sweep(sweep, float(self.conf["ego_radius_m"]))
         K, T = self.calibration(frame_id)
+        image = read_image(self.root / cam["filename"])
+        calib = (
+            f"{self.root / self.conf['version'] / 'calibrated_sensor.json'} (token {cam['calibrated_sensor_token']})"
+        )
+        check_fits(self.root / cam["filename"], image, K, calib)
         return SensorFrame(
             dataset=self.name,
             frame_id=frame_id,
-            image=read_image(self.root / cam["filename"]),
+            image=image,
             points=points,
             ring=ring,
             K=K,
