@@ -87,7 +87,12 @@ class Tolerance:
 
 def parse_tolerances(text: str) -> list[Tolerance]:
     """`"acc=-2,rte=+0.05,rre=+0.2,latency=x1.5"` -> tolerances, refusing unknown metrics and wrong-way signs."""
-    return [_parse_one(item.strip()) for item in text.split(",") if item.strip()]
+    tolerances = [_parse_one(item.strip()) for item in text.split(",") if item.strip()]
+    metrics = [t.metric for t in tolerances]
+    twice = sorted({m for m in metrics if metrics.count(m) > 1})
+    if twice:  # the last one silently won
+        raise I2PBenchError(f"tolerance {text!r}: {', '.join(twice)} given twice; give each metric once")
+    return tolerances
 
 
 def _parse_one(item: str) -> Tolerance:

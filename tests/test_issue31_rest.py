@@ -214,3 +214,121 @@ def test_the_progress_bar_names_the_grid_and_the_combination_and_cache_reuse_is_
     assert "3 combination(s) x 2 frames: 100%|" in more.stderr.replace("\r", "\n")
     assert f"4 of 6 frames reused from the cache in {Path('runs/kitti-all')}\n" in more.stderr
     assert "reused" not in i2pbench(*args, "--quiet", cwd=tmp_path).stderr  # --quiet: the board and errors only
+
+
+# ---- weak list: why frames failed, latency from other thread counts, values that mean nothing ----
+
+
+@needs_kitti
+def test_failed_frames_are_counted_by_reason_on_the_terminal(tmp_path):
+    root = _kitti_frames(tmp_path / "kitti", 3)
+    seq = os.fsencode(root / "sequences" / "00")
+    for stem, bad in ((b"000001", b"00000\xfe"), (b"000002", b"00000\xff")):  # two frames failing the same way
+        for folder, ext in ((b"velodyne", b".bin"), (b"image_2", b".png")):
+            os.rename(seq + b"/" + folder + b"/" + stem + ext, seq + b"/" + folder + b"/" + bad + ext)
+    args = ["run", "--dataset", "kitti", "--split", "all", "--data-root", str(root), *CLASSIC, "--runs-dir", "runs"]
+    done = i2pbench(*args, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    lines = done.stderr.splitlines()
+    at = lines.index("2 of 3 frames failed; by reason (count x combination: reason, e.g. a frame):")
+    assert lines[at + 1] == (
+        "  2 x canny > depth > oracle > epnp-ransac: dataset 'kitti' frame <id>: the file name is not UTF-8 (<file>, "
+        "<file>), which results cannot store; rename it (e.g. 00/00000\\xfe)"
+    )
+    assert "frames failed" not in i2pbench(*args, "--quiet", cwd=tmp_path).stderr
+
+
+@needs_kitti
+def test_latency_reused_from_another_thread_count_is_said(tmp_path):
+    root = _kitti_frames(tmp_path / "kitti", 2)
+    args = ["run", "--dataset", "kitti", "--split", "all", "--data-root", str(root), *CLASSIC, "--runs-dir", "runs"]
+    assert "note: the latency" not in i2pbench(*args, "--threads", "1", cwd=tmp_path).stderr
+    same = i2pbench(*args, "--threads", "1", cwd=tmp_path)
+    assert "2 of 2 frames reused" in same.stderr and "note: the latency" not in same.stderr
+    other = i2pbench(*args, "--threads", "2", cwd=tmp_path)
+    assert other.returncode == 0, other.stderr
+    assert (
+        "note: the latency of 2 frame(s) reused from the cache was measured at 1 thread(s), not this run's 2; "
+        "--overwrite measures them again"
+    ) in other.stderr
+
+
+def test_epochs_0_is_refused(tmp_path):
+    done = i2pbench("train", "--out", str(tmp_path / "w.pt"), "--epochs", "0", cwd=tmp_path)
+    assert done.returncode == 2 and done.stderr.startswith("usage: i2pbench train")
+    assert_refused(done, "--epochs", "'0' is not a finite positive number")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("split", ["--train", "--val", "--test"])
+def test_data_synth_refuses_a_negative_frame_count(tmp_path, split):
+    done = i2pbench("data", "synth", "--root", str(tmp_path / "syn"), split, "-1", cwd=tmp_path)
+    assert_refused(done, split, "'-1' is not 0 or a positive integer")
+    assert not (tmp_path / "syn").exists()
+
+
+@pytest.mark.parametrize("text", ["", "# nothing yet\n", "base: {}\ngrid: {}\n"])
+def test_an_empty_grid_file_is_refused_instead_of_running_the_default(tmp_path, text):
+    grid = tmp_path / "empty.yaml"
+    grid.write_text(text)
+    done = i2pbench("run", "--grid", str(grid), "--runs-dir", str(tmp_path / "runs"), cwd=tmp_path)
+    assert_refused(done, f"--grid {grid}: the file names no stage", "expected base: {kind: name}")
+    assert not (tmp_path / "runs").exists()
+
+
+def test_a_tolerance_given_twice_is_refused():
+    from i2pbench.compare import parse_tolerances
+    from i2pbench.errors import I2PBenchError
+
+    assert [t.metric for t in parse_tolerances("acc=-2,rte=+0.05")] == ["acc", "rte"]
+    with pytest.raises(I2PBenchError, match=r"tolerance 'acc=-2,rte=\+0.05,acc=-1': acc given twice; give each"):
+        parse_tolerances("acc=-2,rte=+0.05,acc=-1")
+
+
+# ---- weak list: an image whose size does not fit the calibration, or no camera's size ----
+
+
+@needs_kitti
+def test_an_image_of_another_size_than_the_calibration_fails_that_frame_naming_both_files(tmp_path):
+    import cv2
+
+    from i2pbench.data.kitti import read_frame
+
+    root = _kitti_frames(tmp_path / "kitti", 2)
+    seq = root / "sequences" / "00"
+    image = cv2.imread(str(seq / "image_2" / "000001.png"))
+    half = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2))
+    cv2.imwrite(str(seq / "image_2" / "000001.png"), half)
+    args = ["run", "--dataset", "kitti", "--split", "all", "--data-root", str(root), *CLASSIC, "--runs-dir", "runs"]
+    done = i2pbench(*args, "--quiet", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    records = _records(tmp_path / "runs" / "kitti-all").set_index("frame_id").sort_index()
+    assert list(records["status"]) == ["ok", "failed"]
+    K = read_frame(seq, "000000").K  # the full-size frame still fits
+    assert records.loc["00/000001", "error"] == (
+        f"{seq}/image_2/000001.png: the image is {half.shape[1]} x {half.shape[0]} px, but the intrinsics of "
+        f"{seq}/calib.txt put the principal point at ({K[0, 2]:.1f}, {K[1, 2]:.1f}), outside its middle half: the "
+        "image does not fit this calibration (resized or cropped?)"
+    )
+
+
+def test_an_image_past_16384_px_a_side_is_refused_before_decoding(tmp_path):
+    import struct
+    import zlib
+
+    import cv2
+    import numpy as np
+
+    from i2pbench.data.images import PNG_END, PNG_START, header_size, read_image
+    from i2pbench.errors import DataError
+
+    ihdr = struct.pack(">II5B", 40000, 40000, 8, 2, 0, 0, 0)
+    chunk = struct.pack(">I", 13) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
+    huge = tmp_path / "huge.png"
+    huge.write_bytes(PNG_START + chunk + PNG_END)  # the header of a 40000 x 40000 image (4.8 GB decoded)
+    with pytest.raises(DataError, match=rf"{huge}: the image is 40000 x 40000 px, past 16384 px a side"):
+        read_image(huge)
+    small = np.zeros((30, 50, 3), np.uint8)
+    for ext in (".png", ".jpg"):  # the header is read right, so real images pass
+        data = cv2.imencode(ext, small)[1].tobytes()
+        assert header_size(data) == (50, 30)

@@ -10,14 +10,25 @@ import argparse
 import sys
 
 
+def frame_count(text: str) -> int:
+    """An argparse type: a split's frame count, 0 or more (`--train -1` made the default 400)."""
+    try:
+        count = int(text)
+    except ValueError:
+        count = -1
+    if count < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not 0 or a positive integer")
+    return count
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("data", help="dataset utilities")
     data_sub = p.add_subparsers(dest="data_command", required=True)
     synth = data_sub.add_parser("synth", help="generate the synthetic street dataset in the KITTI Odometry layout")
     synth.add_argument("--root", help="output directory (default: the synthetic dataset's cache directory)")
-    synth.add_argument("--train", type=int, default=None, help="frames in the train split")
-    synth.add_argument("--val", type=int, default=None, help="frames in the val split")
-    synth.add_argument("--test", type=int, default=None, help="frames in the test split")
+    synth.add_argument("--train", type=frame_count, default=None, help="frames in the train split")
+    synth.add_argument("--val", type=frame_count, default=None, help="frames in the val split")
+    synth.add_argument("--test", type=frame_count, default=None, help="frames in the test split")
     synth.add_argument("--seed", type=int, default=0)
     synth.add_argument(
         "--style",

@@ -64,7 +64,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=positive_int, default=20000, help="optimiser steps")
     p.add_argument(
         "--epochs",
-        type=float,
+        type=positive_float,  # 0 trained one step
         default=None,
         help="train this many passes over the split (sets --steps; each pass a permutation seeded by (seed, epoch))",
     )
