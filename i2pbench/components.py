@@ -39,8 +39,32 @@ def merge_conf(defaults: Mapping[str, Any], overrides: Mapping[str, Any] | None,
     for key, value in (overrides or {}).items():
         if key not in conf:
             raise ConfigError(f"{owner}: unknown config key {key!r}; known keys: {sorted(conf)}")
+        check_kind(owner, key, conf[key], value)
         conf[key] = value
     return conf
+
+
+def _kind(value: Any) -> str | None:
+    """the kind of value a config key holds, for the check below; None: any value goes (a None default, or None)."""
+    if value is None:
+        return None
+    if isinstance(value, bool):
+        return "true or false"
+    if isinstance(value, int | float):
+        return "a number"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, list | tuple):
+        return "a list"
+    return "a mapping" if isinstance(value, Mapping) else None
+
+
+def check_kind(owner: str, key: str, default: Any, value: Any) -> None:
+    """Refuse a value of another kind than its default (issue 31: a `cameras` string became a list of characters,
+    a number given as text reached the stage). A None default or value, and ints for floats, go through."""
+    want, got = _kind(default), _kind(value)
+    if want is not None and got is not None and want != got:
+        raise ConfigError(f"{owner}: config {key} = {value!r} is {got}, but {key} takes {want} (default {default!r})")
 
 
 class Component:

@@ -332,3 +332,38 @@ def test_an_image_past_16384_px_a_side_is_refused_before_decoding(tmp_path):
     for ext in (".png", ".jpg"):  # the header is read right, so real images pass
         data = cv2.imencode(ext, small)[1].tobytes()
         assert header_size(data) == (50, 30)
+
+
+# ---- weak list: a --conf or --data-conf value of another kind than its default ----
+
+
+@pytest.mark.parametrize(
+    ("conf", "named"),
+    [
+        ("solver.reprojection_error_px=six", "config reprojection_error_px = 'six' is a string, but "
+         "reprojection_error_px takes a number (default 6.5)"),
+        ("solver.iterations=[5000]", "config iterations = [5000] is a list, but iterations takes a number"),
+        ("solver.seed=true", "config seed = True is true or false, but seed takes a number"),
+    ],
+)  # fmt: skip
+def test_a_conf_value_of_another_kind_than_its_default_is_refused_naming_the_key(tmp_path, conf, named):
+    done = i2pbench("run", *CLASSIC, "--conf", conf, "--runs-dir", str(tmp_path / "runs"), cwd=tmp_path)
+    assert_refused(done, "solver 'epnp-ransac'", named)
+    assert not (tmp_path / "runs").exists()
+
+
+def test_a_cameras_string_is_refused_not_read_as_a_list_of_characters():
+    from i2pbench.components import ConfigError
+    from i2pbench.data.nuscenes import NuScenes
+
+    with pytest.raises(ConfigError, match=r"config cameras = 'CAM_FRONT' is a string, but cameras takes a list"):
+        NuScenes("val", {"root": "/nowhere", "cameras": "CAM_FRONT"})
+    assert NuScenes("val", {"cameras": ["CAM_BACK"], "root": None}).conf["cameras"] == ["CAM_BACK"]
+
+
+def test_numbers_stand_for_each_other_and_none_goes_anywhere():
+    from i2pbench.components import merge_conf
+
+    merged = merge_conf({"radius": 3.0, "count": 2, "name": "x", "auto": None}, {"radius": 4, "count": 2.5,
+                        "name": None, "auto": [1]}, "test")  # fmt: skip
+    assert merged == {"radius": 4, "count": 2.5, "name": None, "auto": [1]}

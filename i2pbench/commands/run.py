@@ -183,6 +183,17 @@ def _combinations(registry, args: argparse.Namespace):
     return expand(bases, choices, confs, registry)
 
 
+def _check_confs(registry, combinations) -> None:
+    """Each stage's config merged over its defaults before any folder is made: an unknown key or a value of another
+    kind is refused while nothing is written (Pipeline.build checks the same, but after the run's store exists)."""
+    from ..components import merge_conf
+
+    for combination in combinations:
+        for kind, conf in combination.confs.items():
+            component = registry.component(kind, combination.names[kind])
+            merge_conf(component.default_conf, conf, f"{kind} {component.name!r}")
+
+
 def _grid_file(path: str):
     """The grid file, or a PluginError naming it when it cannot be read or is not a grid."""
     import yaml
@@ -219,6 +230,7 @@ def run(args: argparse.Namespace) -> int:
     args.device = resolve_device_name(args.device)  # resolved once: "auto" would read differently in the record
     registry = default_registry()
     combinations = _combinations(registry, args)
+    _check_confs(registry, combinations)
     dataset = open_dataset(registry, args)
     frame_ids = _frame_ids(dataset, args)
     if not frame_ids:
