@@ -7,6 +7,7 @@ names of the values it `consumes` and `provides`, so an incompatible combination
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
@@ -44,6 +45,9 @@ def merge_conf(defaults: Mapping[str, Any], overrides: Mapping[str, Any] | None,
     return conf
 
 
+LENGTHS = ("radius_px", "reproj")  # keys that are pixel lengths (match radii, reprojection error bounds): above 0
+
+
 def _kind(value: Any) -> str | None:
     """the kind of value a config key holds, for the check below; None: any value goes (a None default, or None)."""
     if value is None:
@@ -65,6 +69,13 @@ def check_kind(owner: str, key: str, default: Any, value: Any) -> None:
     want, got = _kind(default), _kind(value)
     if want is not None and got is not None and want != got:
         raise ConfigError(f"{owner}: config {key} = {value!r} is {got}, but {key} takes {want} (default {default!r})")
+    if got != "a number":
+        return
+    if math.isnan(value):
+        raise ConfigError(f"{owner}: config {key} = nan is no number to compare with; give a number")
+    lengths = any(word in key for word in LENGTHS) and isinstance(default, int | float) and default > 0
+    if lengths and not (math.isfinite(value) and value > 0):  # a radius of 0 or -3 px matches nothing, silently
+        raise ConfigError(f"{owner}: config {key} = {value!r}: a radius or error bound is a finite positive number")
 
 
 class Component:

@@ -367,3 +367,23 @@ def test_numbers_stand_for_each_other_and_none_goes_anywhere():
     merged = merge_conf({"radius": 3.0, "count": 2, "name": "x", "auto": None}, {"radius": 4, "count": 2.5,
                         "name": None, "auto": [1]}, "test")  # fmt: skip
     assert merged == {"radius": 4, "count": 2.5, "name": None, "auto": [1]}
+
+
+@pytest.mark.parametrize("value", ["0", "-3", ".inf"])
+def test_a_radius_or_reprojection_bound_that_is_not_positive_is_refused(tmp_path, value):
+    conf = f"solver.reprojection_error_px={value}"
+    done = i2pbench("run", *CLASSIC, "--conf", conf, "--runs-dir", str(tmp_path / "runs"), cwd=tmp_path)
+    assert_refused(done, "solver 'epnp-ransac': config reprojection_error_px =", "a finite positive number")
+    assert not (tmp_path / "runs").exists()
+
+
+def test_nan_is_refused_for_any_number_and_positive_lengths_pass():
+    from i2pbench.components import ConfigError, merge_conf
+
+    defaults = {"confidence": 0.99, "pair_radius_px": 16.0, "offset": 1.0}
+    with pytest.raises(ConfigError, match="test: config confidence = nan is no number to compare with"):
+        merge_conf(defaults, {"confidence": float("nan")}, "test")
+    with pytest.raises(ConfigError, match="config pair_radius_px = -1: a radius or error bound is a finite positive"):
+        merge_conf(defaults, {"pair_radius_px": -1}, "test")
+    assert merge_conf(defaults, {"pair_radius_px": 2.5, "offset": -4.0}, "test")["offset"] == -4.0  # not a length
+    assert merge_conf({"ego_radius_m": 1.2}, {"ego_radius_m": 0}, "test") == {"ego_radius_m": 0}  # 0: keep all
