@@ -290,7 +290,8 @@ def _latency_reused(records, invocation: str, threads: int, args: argparse.Names
     if "threads" not in records:
         return []
     computed = records["invocation"] == invocation
-    own = set(records.loc[computed, "threads"]) or {threads if not args.workers else args.threads_per_worker}
+    serial = args.executor == "local" and (args.workers or 1) <= 1  # else workers run at --threads-per-worker
+    own = set(records.loc[computed, "threads"]) or {threads if serial else args.threads_per_worker}
     other = records[~computed & ~records["threads"].isin(own)]
     if other.empty:
         return []
