@@ -20,6 +20,7 @@ from i2pbench_corri2p.loss import anchor_pairs, balanced_bce, circle_loss, overl
 from i2pbench_corri2p.overlap import CorrI2PMatcher, candidates, mutual_nearest, nearest_to_each_column
 from i2pbench_corri2p.points import CorrI2PPointEncoder
 from test_edgeregnet_training import one_thread, tiny_frame  # noqa: F401 (an autouse fixture)
+from test_training_batches import assert_mean_of_frames
 
 from i2pbench.api import Features, Frame, Keypoints2D, Keypoints3D
 from i2pbench.batching import BatchForward, prepare_stage
@@ -407,8 +408,7 @@ def test_a_batch_of_two_gives_the_mean_loss_and_gradients_of_its_frames():
     torch.testing.assert_close(loss_ab, (loss_a + loss_b) / 2, atol=1e-5, rtol=1e-5)
     for key in ("circle", "overlap", "pairs"):
         assert terms_ab[key] == pytest.approx((terms_a[key] + terms_b[key]) / 2, rel=1e-5)
-    for name, grad in grads_ab.items():
-        torch.testing.assert_close(grad, (grads_a[name] + grads_b[name]) / 2, atol=1e-5, rtol=1e-4, msg=name)
+    assert_mean_of_frames(grads_ab, grads_a, grads_b)
 
 
 def test_the_per_frame_loss_is_the_batch_of_one():

@@ -27,6 +27,7 @@ from test_deepi2p_geometry import T_CAM_LIDAR as TOY_T_CAM_LIDAR
 from test_deepi2p_geometry import K as TOY_K
 from test_deepi2p_geometry import scene
 from test_edgeregnet_training import one_thread, tiny_frame  # noqa: F401 (an autouse fixture)
+from test_training_batches import assert_mean_of_frames
 
 from i2pbench.api import (
     FRUSTUM_SCORES,
@@ -513,8 +514,7 @@ def test_a_batch_of_two_gives_the_mean_loss_and_gradients_of_its_frames():
     torch.testing.assert_close(loss_ab, (loss_a + loss_b) / 2, atol=1e-5, rtol=1e-5)
     for key in ("frustum", "cell", "inside"):
         assert terms_ab[key] == pytest.approx((terms_a[key] + terms_b[key]) / 2, rel=1e-5)
-    for name, grad in grads_ab.items():
-        torch.testing.assert_close(grad, (grads_a[name] + grads_b[name]) / 2, atol=1e-5, rtol=1e-4, msg=name)
+    assert_mean_of_frames(grads_ab, grads_a, grads_b)
 
 
 def test_the_per_frame_loss_is_the_batch_of_one():

@@ -10,6 +10,18 @@ from i2pbench.training_data import collate_samples
 
 KINDS = ("encoder2d", "encoder3d", "exchanger", "matcher")
 
+# A batch of two sums its frames in another order than two batches of one (other conv, matmul and reduction kernels,
+# other SIMD widths), so its gradients are their mean only up to float32 rounding. Measured on the tiny EdgeRegNet,
+# CorrI2P and DeepI2P stages under ATEN_CPU_CAPABILITY avx512/avx2/default, ONEDNN_MAX_CPU_ISA AVX2/SSE41, MKL_CBWR
+# AVX2/COMPATIBLE, mixes of these and 1, 2, 4 threads: max |diff| up to 4.3e-5 of that tensor's largest gradient,
+# and up to 1e-6 of the model's largest on a gradient that is zero in exact arithmetic (a bias ahead of a
+# normalisation: rounding noise, at the scale of what flows back through it). The former element-wise bound (atol
+# 1e-5, rtol 1e-4) used 65% of itself on CorrI2P's stem here (max |diff| 9e-6 on gradients up to 0.92), 112% with
+# MKL_CBWR=COMPATIBLE, and failed on another AVX-512 machine. The bounds below keep margins of 23 and 10, and still
+# fail over 80% of the tensors of each method for a sum instead of the mean, a dropped frame, or frames weighted by
+# their keypoint counts (0.57 / 0.43).
+GRAD_RTOL, GRAD_ATOL = 1e-3, 1e-5
+
 
 def sample(stages, seed, cut=0):
     """a tiny frame's prepared sample; `cut` drops that many 2D and 3D keypoints (the random 2D ones and the last
@@ -31,6 +43,24 @@ def loss_and_grads(stages, samples):
     return loss.detach(), terms, grads
 
 
+def assert_mean_of_frames(batch: dict[str, torch.Tensor], a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]):
+    """each gradient of a batch of two is the mean of its frames' gradients: max |diff| within GRAD_RTOL of that
+    tensor's largest and GRAD_ATOL of the model's largest; a failure lists the figures of every tensor off."""
+    mean = {name: (a[name] + b[name]) / 2 for name in batch}
+    top = max(float(m.abs().max()) for m in mean.values())
+    off = []
+    for name, grad in batch.items():
+        diff, scale = float((grad - mean[name]).abs().max()), float(mean[name].abs().max())
+        if diff > GRAD_RTOL * scale + GRAD_ATOL * top:
+            ratio = diff / scale if scale else float("inf")
+            off.append(f"{name}: max |diff| {diff:.3g}, scale {scale:.3g}, ratio {ratio:.3g}")
+    head = (
+        f"{len(off)} of {len(batch)} gradients are not the mean of the frames': max |diff| over {GRAD_RTOL:g} x scale"
+        f" + {GRAD_ATOL:g} x the largest gradient, {top:.3g}"
+    )
+    assert not off, "\n".join([head, *off])
+
+
 def test_pad_stack_pads_every_dim_at_the_end():
     out = pad_stack([torch.ones(1, 2), torch.full((2, 1), 2.0)], value=-1)
     assert out.tolist() == [[[1, 1], [-1, -1]], [[2, -1], [2, -1]]]
@@ -45,12 +75,10 @@ def test_a_batch_of_two_gives_the_mean_loss_and_gradients_of_its_frames():
     loss_b, terms_b, grads_b = loss_and_grads(stages, [b])
     loss_ab, terms_ab, grads_ab = loss_and_grads(stages, [a, b])
     assert terms_a["pairs"] >= 20 and terms_b["pairs"] >= 20
-    # same operations on the same numbers, up to float summation order (measured: 1e-6 on the loss, and the
-    # gradients within 2.4% of their tolerance, at 1 and 2 threads)
+    # same operations on the same numbers, up to float summation order (measured: the loss within 1.2e-7 relative)
     torch.testing.assert_close(loss_ab, (loss_a + loss_b) / 2, atol=1e-5, rtol=1e-5)
     assert terms_ab["pairs"] == (terms_a["pairs"] + terms_b["pairs"]) / 2
-    for name, grad in grads_ab.items():
-        torch.testing.assert_close(grad, (grads_a[name] + grads_b[name]) / 2, atol=1e-5, rtol=1e-4, msg=name)
+    assert_mean_of_frames(grads_ab, grads_a, grads_b)
 
 
 def test_padded_keypoints_change_nothing():
