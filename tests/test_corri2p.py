@@ -357,9 +357,12 @@ def test_training_on_one_frame_makes_true_pairs_mutual_nearest_neighbours():
     (first, circle0, overlap0), (last, circle1, overlap1) = history[0], history[-1]
     # measured when written: total 5.67 -> 2.92, circle 4.26 -> 2.39, overlap 2.82 -> 1.07; 31 of the 36 2D anchors
     # (0.86) in a true mutual pair. Before the per-frame normalisation (LayerNorm heads, which kept the frame's
-    # global feature as most of every descriptor): total 4.89 -> 3.65, circle 3.50 -> 3.33, 1 of 36 (0.03)
+    # global feature as most of every descriptor): total 4.89 -> 3.65, circle 3.50 -> 3.33, 1 of 36 (0.03).
+    # Float rounding moves the 40 steps: under 12 choices of ATen, oneDNN and MKL kernels the three ratios below were
+    # 0.51-0.54, 0.56-0.60 and 0.38, and 29 to 33 of the 36 anchors were in a true mutual pair (29 with oneDNN's SSE4.1
+    # kernels), so the pairs' bound sits 7 pairs below the fewest seen
     assert last < 0.6 * first and circle1 < 0.7 * circle0 and overlap1 < 0.5 * overlap0
-    assert true_mutual_fraction(stages, frame, kp2d, kp3d) > 0.7
+    assert true_mutual_fraction(stages, frame, kp2d, kp3d) > 0.6
 
 
 def test_the_cpu_size_point_descriptors_ignore_the_protocol_s_yaw_and_shift():

@@ -109,9 +109,12 @@ def test_one_frame_overfits():
         loss.backward()
         optimiser.step()
         losses.append(loss.item())
-    # the last steps spike now and then (3.4 to 8.6 within steps 91-100, the spikes moved by float rounding alone):
-    # judge their median
-    assert np.median(losses[-10:]) < 0.4 * losses[0]  # 12.3 -> 3.5 (median of steps 91-100) when written
+    # the last steps spike now and then, and where depends on float rounding alone: under 14 choices of ATen, oneDNN
+    # and MKL kernels (ATEN_CPU_CAPABILITY avx2/default, ONEDNN_MAX_CPU_ISA AVX2/SSE41, MKL_CBWR AVX2/COMPATIBLE
+    # and mixes) the median of steps 91-100 went from 0.275 to 0.393 of the first loss (SSE41: 5 of the 10 spiked,
+    # up to 8.3), the median of steps 81-100 from 0.294 to 0.324. Judge the latter; a quarter of the learning rate
+    # gives 0.437, no training 1.0
+    assert np.median(losses[-20:]) < 0.4 * losses[0]  # 12.3 -> 3.7 (median of steps 81-100) at ATen's AVX-512
 
 
 def test_empty_keypoint_sets_give_no_match():
