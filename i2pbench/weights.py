@@ -191,6 +191,10 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
     again, so `--weights auto` over a grid of combinations reads each shipped file once."""
     path = Path(path)
     if not path.is_file():
+        if path.is_dir():
+            raise WeightsError(f"checkpoint {path} is a folder, not a checkpoint file")
+        if not path.parent.is_dir():
+            raise WeightsError(f"checkpoint {path}: its folder {path.parent} does not exist")
         raise WeightsError(f"checkpoint {path} does not exist")
     stat = path.stat()
     return _read_checkpoint(path, (stat.st_size, stat.st_mtime_ns, stat.st_ctime_ns))
@@ -205,7 +209,7 @@ def _read_checkpoint(path: Path, stamp: tuple[int, int, int]) -> Checkpoint:
         meta = json.loads(payload["meta"])
         state = payload["state"]
     except Exception as exc:
-        raise WeightsError(f"checkpoint {path} is not a readable i2pbench checkpoint: {exc}") from exc
+        raise WeightsError(f"checkpoint {path} is not a readable i2pbench checkpoint: {_unreadable(exc)}") from exc
     recorded = payload.get("sha256")  # absent in checkpoints written before it was recorded: nothing to check
     if recorded is not None and recorded != content_digest(payload["meta"], state):
         raise WeightsError(
@@ -219,6 +223,17 @@ def _read_checkpoint(path: Path, stamp: tuple[int, int, int]) -> Checkpoint:
     if problem:
         raise WeightsError(f"checkpoint {path} is malformed: {problem}; refusing it")
     return Checkpoint(path, meta, state)
+
+
+def _unreadable(exc: Exception) -> str:
+    """Why torch could not read a file, in one line. torch's own message for a pickle of other objects advises
+    `weights_only=False`, which would run whatever code the file holds: i2pbench never does, nor advises it."""
+    text = str(exc).strip()
+    if "weights_only" in text or "Unpickl" in type(exc).__name__:
+        return "it holds Python objects, not only tensors (not a file i2pbench wrote), and is not unpickled"
+    if isinstance(exc, KeyError):
+        return f"no {text} entry (a torch file, but not an i2pbench checkpoint)"
+    return text.splitlines()[0] if text else f"{type(exc).__name__} (an empty or cut-short file)"
 
 
 def _meta_problem(meta: dict[str, Any], state: Any) -> str | None:

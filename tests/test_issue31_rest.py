@@ -387,3 +387,49 @@ def test_nan_is_refused_for_any_number_and_positive_lengths_pass():
         merge_conf(defaults, {"pair_radius_px": -1}, "test")
     assert merge_conf(defaults, {"pair_radius_px": 2.5, "offset": -4.0}, "test")["offset"] == -4.0  # not a length
     assert merge_conf({"ego_radius_m": 1.2}, {"ego_radius_m": 0}, "test") == {"ego_radius_m": 0}  # 0: keep all
+
+
+# --- checkpoint messages (issue 31, weak list): never advise unpickling, name the folder, never an empty reason
+
+
+def test_a_checkpoint_of_python_objects_is_refused_without_advising_to_unpickle_it(tmp_path):
+    import argparse
+
+    import torch
+
+    from i2pbench.errors import WeightsError
+    from i2pbench.weights import load_checkpoint
+
+    torch.save({"meta": "{}", "state": argparse.Namespace(a=1)}, tmp_path / "objects.pt")
+    with pytest.raises(WeightsError) as caught:
+        load_checkpoint(tmp_path / "objects.pt")
+    message = str(caught.value)
+    assert message == (
+        f"checkpoint {tmp_path / 'objects.pt'} is not a readable i2pbench checkpoint: it holds Python objects, "
+        "not only tensors (not a file i2pbench wrote), and is not unpickled"
+    )
+    assert "weights_only" not in message
+
+
+@pytest.mark.parametrize(
+    "name, reason",
+    [
+        ("empty.pt", "is not a readable i2pbench checkpoint: EOFError (an empty or cut-short file)"),
+        ("no-meta.pt", "is not a readable i2pbench checkpoint: no 'meta' entry (a torch file, but not an i2pbench"),
+        ("gone/x.pt", ": its folder {folder} does not exist"),
+        ("folder", "is a folder, not a checkpoint file"),
+    ],
+)
+def test_a_checkpoint_that_cannot_be_read_says_why(tmp_path, name, reason):
+    import torch
+
+    from i2pbench.errors import WeightsError
+    from i2pbench.weights import load_checkpoint
+
+    (tmp_path / "empty.pt").write_bytes(b"")
+    torch.save({"state": {}}, tmp_path / "no-meta.pt")
+    (tmp_path / "folder").mkdir()
+    with pytest.raises(WeightsError) as caught:
+        load_checkpoint(tmp_path / name)
+    assert f"checkpoint {tmp_path / name}" in str(caught.value)
+    assert reason.format(folder=tmp_path / "gone") in str(caught.value)
