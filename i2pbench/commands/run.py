@@ -223,6 +223,7 @@ def run(args: argparse.Namespace) -> int:
     from ..protocol import Protocol
     from ..runs.environment import fix_threads
     from ..runs.invocation import Invocation
+    from .run_notes import failure_reasons, latency_reused
 
     if args.isolate:  # Pipeline.build reads it; worker processes receive pipelines built here
         os.environ["I2PBENCH_ISOLATE"] = args.isolate
@@ -249,57 +250,13 @@ def run(args: argparse.Namespace) -> int:
     invocation.finish(**counts)
     progress.note(f"{counts['reused']} of {len(records)} frames reused from the cache in {store.root}")
     print(leaderboard.to_markdown(board))  # first: a leaderboard that cannot be written is still seen
-    for line in [*failure_reasons(records), *_latency_reused(records, invocation.id, threads, args)]:
+    for line in [*failure_reasons(records), *latency_reused(records, invocation.id, threads, args)]:
         progress.note(line)
     summary = _robustness(registry, board)
     stem = Path(args.out or Path(args.runs_dir) / "leaderboards" / board_name(name, args))
     paths = _write_board(board, records, stem, store.root, summary)
     progress.note(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store.root}")
     return 0
-
-
-def failure_reasons(records, most: int = 10) -> list[str]:
-    """Failed frames counted by (combination, reason), most first: a reason is the error with its frame, paths and
-    numbers masked, so frames that fail the same way count together (the board counts failures, not why)."""
-    failed = records[records["status"] != "ok"]
-    if failed.empty:
-        return []
-    failed = failed.assign(reason=failed["error"].fillna("").map(_reason))
-    groups = failed.groupby(["combination", "reason"], sort=False)["frame_id"].agg(["size", "first"])
-    groups = groups.sort_values("size", ascending=False, kind="stable")
-    lines = [f"{len(failed)} of {len(records)} frames failed; by reason (count x combination: reason, e.g. a frame):"]
-    lines += [
-        f"  {n} x {combination}: {why} (e.g. {example})"
-        for (combination, why), (n, example) in groups.head(most).iterrows()
-    ]
-    return lines + ([f"  ... and {len(groups) - most} more reasons"] if len(groups) > most else [])
-
-
-def _reason(error: str) -> str:
-    import re
-
-    error = re.sub(r"frame '[^']*'", "frame <id>", error)
-    error = re.sub(r"(?<![\w.])/[^\s,;()]+", "<file>", error)
-    error = re.sub(r"(?<![\w.-])\d+(\.\d+)?(e[-+]?\d+)?", "N", error)  # not UTF-8's
-    return error if len(error) <= 200 else error[:197] + "..."
-
-
-def _latency_reused(records, invocation: str, threads: int, args: argparse.Namespace) -> list[str]:
-    """A note when frames reused from the cache were timed at other thread counts than this run's: their latency
-    is on the board, and says nothing of this run's settings."""
-    if "threads" not in records:
-        return []
-    computed = records["invocation"] == invocation
-    serial = args.executor == "local" and (args.workers or 1) <= 1  # else workers run at --threads-per-worker
-    own = set(records.loc[computed, "threads"]) or {threads if serial else args.threads_per_worker}
-    other = records[~computed & ~records["threads"].isin(own)]
-    if other.empty:
-        return []
-    at = ", ".join(str(int(t)) for t in sorted(set(other["threads"])))
-    return [
-        f"note: the latency of {len(other)} frame(s) reused from the cache was measured at {at} thread(s), not "
-        f"this run's {', '.join(str(int(t)) for t in sorted(own))}; --overwrite measures them again"
-    ]
 
 
 def board_name(store_name: str, args: argparse.Namespace) -> str:
