@@ -36,13 +36,43 @@ class ConfigError(PluginError, ValueError):
 
 
 def merge_conf(defaults: Mapping[str, Any], overrides: Mapping[str, Any] | None, owner: str) -> dict[str, Any]:
+    """`overrides` merged over a copy of `defaults` at every depth: a mapping given for a mapping default changes
+    only the keys it names (`{"sa1": {"radius": 0.2}}` keeps sa1's other keys). A key the defaults lack, at any
+    depth, is a ConfigError naming its dotted path and the closest valid one; an empty mapping default (nothing to
+    check against) takes a mapping whole."""
+    return _merged(defaults, overrides or {}, owner, "")
+
+
+def _merged(defaults: Mapping[str, Any], overrides: Mapping[str, Any], owner: str, path: str) -> dict[str, Any]:
     conf = copy.deepcopy(dict(defaults))
-    for key, value in (overrides or {}).items():
+    for key, value in overrides.items():
+        where = f"{path}{key}"
         if key not in conf:
-            raise ConfigError(f"{owner}: unknown config key {key!r}; known keys: {sorted(conf)}")
-        check_kind(owner, key, conf[key], value)
-        conf[key] = value
+            raise ConfigError(_unknown_key(owner, path, str(key), conf))
+        check_kind(owner, where, conf[key], value)
+        nested = isinstance(conf[key], Mapping) and bool(conf[key]) and isinstance(value, Mapping)
+        conf[key] = _merged(conf[key], value, owner, f"{where}.") if nested else value
     return conf
+
+
+def overlay(base: Mapping[str, Any], more: Mapping[str, Any]) -> dict[str, Any]:
+    """`more` over `base`, nested mappings merged rather than replaced and nothing checked: overrides from several
+    places (a preset's pins, a grid file, --conf) combined before `merge_conf` checks them against the defaults."""
+    out = dict(base)
+    for key, value in more.items():
+        both = isinstance(out.get(key), Mapping) and isinstance(value, Mapping)
+        out[key] = overlay(out[key], value) if both else value
+    return out
+
+
+def _unknown_key(owner: str, path: str, key: str, known: Mapping[str, Any]) -> str:
+    import difflib  # only to suggest a key: a valid config never needs it
+
+    names = [str(k) for k in known]
+    close = difflib.get_close_matches(key, names, n=1, cutoff=0.5)
+    hint = f"; did you mean {path + close[0]!r}?" if close else ""
+    where = f" under {path[:-1]!r}" if path else ""
+    return f"{owner}: unknown config key {path + key!r}{hint} (known keys{where}: {', '.join(names)})"
 
 
 LENGTHS = ("radius_px", "reproj")  # keys that are pixel lengths (match radii, reprojection error bounds): above 0

@@ -10,7 +10,7 @@ from typing import Any
 
 import yaml
 
-from .components import STAGE_BASES, STAGE_ORDER
+from .components import STAGE_BASES, STAGE_ORDER, overlay
 from .errors import PluginError
 from .pipeline import NONE, REQUIRED_STAGES, Combination
 from .plugins import Registry
@@ -22,14 +22,18 @@ OPTIONAL_STAGES = tuple(k for k in STAGE_ORDER if k not in REQUIRED_STAGES)
 
 
 def parse_conf_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
-    """`["matcher.filter_threshold=0.2"]` -> {"matcher": {"filter_threshold": 0.2}} (values parsed as YAML)."""
+    """`["matcher.filter_threshold=0.2", "encoder3d.sa1.radius=0.2"]` -> {"matcher": {"filter_threshold": 0.2},
+    "encoder3d": {"sa1": {"radius": 0.2}}}: values parsed as YAML, dots after the kind nest."""
     confs: dict[str, dict[str, Any]] = {}
     for item in items:
         target, sep, value = item.partition("=")
-        kind, dot, key = target.partition(".")
-        if not sep or not dot or kind not in STAGE_ORDER:
+        kind, *path = target.split(".")
+        if not sep or not all(path) or not path or kind not in STAGE_ORDER:
             raise PluginError(f"--conf {item!r}: expected KIND.KEY=VALUE with KIND one of {list(STAGE_ORDER)}")
-        confs.setdefault(kind, {})[key] = yaml.safe_load(value)
+        setting: Any = yaml.safe_load(value)
+        for key in reversed(path):
+            setting = {key: setting}
+        confs[kind] = overlay(confs.get(kind, {}), setting)
     return confs
 
 
@@ -130,7 +134,7 @@ def _merge_confs(
     for kind in STAGE_ORDER:
         if names.get(kind, NONE) == NONE:
             continue
-        conf = {**(base_confs[kind] if kind in kept else {}), **overrides.get(kind, {})}
+        conf = overlay(base_confs[kind] if kind in kept else {}, overrides.get(kind, {}))
         if conf:
             merged[kind] = conf
     return merged
