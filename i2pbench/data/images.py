@@ -2,7 +2,8 @@
 
 A JPEG cut short decodes into an image whose lower part is grey; the frame then "succeeds" with a wrong pose
 (a truncated nuScenes CAM_FRONT gave RTE 0.63 m instead of 0.09 m). So a JPEG must end with its end-of-image
-marker and a PNG with its IEND chunk before it is decoded.
+marker and a PNG with its IEND chunk before it is decoded. Bytes after that marker (zero padding, another file
+appended by a bad copy) are no truncation: the image before them is read.
 """
 
 from __future__ import annotations
@@ -19,13 +20,44 @@ PNG_START = b"\x89PNG\r\n\x1a\n"
 PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # the IEND chunk: zero length, type, CRC
 
 
+def image_end(data: bytes) -> tuple[int | None, str]:
+    """(length of the image proper, why it is cut short) of a JPEG or PNG: bytes after its end marker are not the
+    image's (padding, a second file appended) and are not a truncation. (len(data), "") for other formats."""
+    if data.startswith(JPEG_START):
+        return _jpeg_end(data)
+    if data.startswith(PNG_START):
+        return _png_end(data)
+    return len(data), ""
+
+
+def _jpeg_end(data: bytes) -> tuple[int | None, str]:
+    """The end-of-image marker is the first FF D9 after the first scan begins: scan data stuffs every FF byte, and
+    the segments before the scan are walked by their lengths (an EXIF thumbnail there carries an FF D9 of its own)."""
+    at = 2
+    while at + 4 <= len(data) and data[at] == 0xFF and data[at + 1] != 0xDA:  # up to the start of scan
+        at += 2 + int.from_bytes(data[at + 2 : at + 4], "big") if data[at + 1] != 0xFF else 1
+    if at + 4 <= len(data) and data[at] == 0xFF:
+        end = data.find(JPEG_END, at)
+        return (end + 2, "") if end >= 0 else (None, "truncated JPEG (no end-of-image marker FF D9 at the end)")
+    if data.rstrip(b"\x00").endswith(JPEG_END):  # headers this walk cannot follow: trust an end marker at the end
+        return len(data), ""
+    return None, "truncated JPEG (no end-of-image marker FF D9 at the end)"
+
+
+def _png_end(data: bytes) -> tuple[int | None, str]:
+    """The end of the IEND chunk, walking the chunks by their lengths (length, type, data, CRC)."""
+    at = len(PNG_START)
+    while at + 12 <= len(data):
+        length, kind = int.from_bytes(data[at : at + 4], "big"), data[at + 4 : at + 8]
+        at += 12 + length
+        if kind == b"IEND":
+            return (at, "") if at <= len(data) else (None, "truncated PNG (no IEND chunk at the end)")
+    return None, "truncated PNG (no IEND chunk at the end)"
+
+
 def truncation(data: bytes) -> str | None:
     """Why `data` is a truncated JPEG or PNG, or None when its end marker is there (other formats: None)."""
-    if data.startswith(JPEG_START) and not data.rstrip(b"\x00").endswith(JPEG_END):
-        return "truncated JPEG (no end-of-image marker FF D9 at the end)"
-    if data.startswith(PNG_START) and not data.endswith(PNG_END):
-        return "truncated PNG (no IEND chunk at the end)"
-    return None
+    return image_end(data)[1] or None
 
 
 MAX_SIDE = 16384  # px; a camera image past this is no camera's (a 40k x 40k PNG took 7 GB to decode)
@@ -64,9 +96,12 @@ def read_image(path: Path) -> np.ndarray:
     if not path.is_file():
         raise DataError(f"{path}: image not found")
     data = path.read_bytes()
-    problem = truncation(data)
+    if not data:
+        raise DataError(f"{path}: empty file (0 bytes), not an image")
+    end, problem = image_end(data)
     if problem:
         raise DataError(f"{path}: {problem}")
+    data = data[:end]  # what follows the end marker is no part of the image
     size = header_size(data)
     if size is not None and max(size) > MAX_SIDE:
         raise DataError(f"{path}: the image is {size[0]} x {size[1]} px, past {MAX_SIDE} px a side; not decoding it")

@@ -194,9 +194,21 @@ def _missing(stems: set[str], folder: Path, suffix: str) -> str:
     return ", ".join(str(folder / f"{s}{suffix}") for s in names[:5]) + more
 
 
+def _refuse_other_case(folder: Path, suffix: str) -> None:
+    """A `.BIN` or `.Png` would be skipped by the listing, silently losing its frame: an error naming it instead."""
+    odd = sorted(p.name for p in folder.glob("*") if p.suffix.lower() == suffix and p.suffix != suffix)
+    if odd:
+        more = f" and {len(odd) - 3} more" if len(odd) > 3 else ""
+        raise DataError(
+            f"{folder / odd[0]}{more}: KITTI names these files *{suffix}, in lower case; rename them (not read as is)"
+        )
+
+
 def sequence_stems(sequence_dir: Path, camera: int = 2) -> list[str]:
     """Sorted frame stems of a sequence, after checking every scan has its image and every image its scan."""
     velodyne, images = sequence_dir / "velodyne", sequence_dir / f"image_{camera}"
+    _refuse_other_case(velodyne, ".bin")
+    _refuse_other_case(images, ".png")
     scans = {p.stem for p in velodyne.glob("*.bin")}
     if not scans:
         raise DataError(f"{velodyne}: empty sequence (no .bin scans)")

@@ -35,6 +35,8 @@ SPLITS: dict[str, tuple[tuple[str, ...], str]] = {
     "mini_train": (("mini_train",), "v1.0-mini"),
     "mini_val": (("mini_val",), "v1.0-mini"),
 }
+TABLES = ("category", "attribute", "visibility", "instance", "sensor", "calibrated_sensor", "ego_pose", "log",
+          "scene", "sample", "sample_data", "sample_annotation", "map")  # fmt: skip  # what the devkit loads
 EVAL_SPLIT = {"v1.0-trainval": "val", "v1.0-mini": "mini_val", "v1.0-test": "test"}  # what `test` falls back to
 NEAR_S = (0.005, 0.2)  # seconds from the sweep a pose must be to time its motion: past pose noise, within a sweep gap
 DEVKIT_INSTALL = (
@@ -120,13 +122,19 @@ def _devkit():
 @lru_cache(maxsize=2)
 def open_devkit(dataroot: str, version: str) -> Any:
     """The devkit's table index for one dataroot and version, built once per process (trainval takes ~30 s)."""
-    if not (Path(dataroot) / version).is_dir():
-        raise DataError(f"{Path(dataroot) / version} not found (the nuScenes dataroot must hold the {version} tables)")
+    tables = Path(dataroot) / version
+    if not tables.is_dir():
+        raise DataError(f"{tables} not found (the nuScenes dataroot must hold the {version} tables)")
+    missing = [str(tables / f"{name}.json") for name in TABLES if not (tables / f"{name}.json").is_file()]
+    if missing:
+        raise DataError(f"{', '.join(missing)} not found (the devkit needs all {len(TABLES)} tables of {version})")
     devkit_class, _ = _devkit()
     try:
         nusc = devkit_class(version=version, dataroot=dataroot, verbose=False)
-    except (AssertionError, OSError, KeyError, IndexError, ValueError) as exc:
-        raise DataError(f"{Path(dataroot) / version}: the devkit cannot load these tables: {exc!r}") from exc
+    except OSError as exc:
+        raise DataError(f"{exc.filename or tables}: the devkit cannot read it ({exc.strerror or exc})") from exc
+    except (AssertionError, KeyError, IndexError, ValueError) as exc:
+        raise DataError(f"{tables}: the devkit cannot load these tables: {exc!r}") from exc
     _refuse_duplicate_tokens(nusc, Path(dataroot) / version)
     return nusc
 
@@ -214,8 +222,8 @@ class NuScenes(Dataset):
         if self._ids is None:
             nusc, names = self.devkit, self.scene_names()
             scenes = {s["token"] for s in nusc.scene if self._keeps(s, names)}
-            samples = [s for s in nusc.sample if s["scene_token"] in scenes and "LIDAR_TOP" in s["data"]]
-            ids = sorted(f"{s['token']}/{cam}" for s in samples for cam in self.cameras if cam in s["data"])
+            samples = [s for s in nusc.sample if s["scene_token"] in scenes]  # one without a record fails, named
+            ids = sorted(f"{s['token']}/{cam}" for s in samples for cam in self.cameras)
             if not ids:
                 raise DataError(f"dataset 'nuscenes': no frames for split {self.split!r} in {self.root / nusc.version}")
             self._ids = ids
@@ -223,42 +231,76 @@ class NuScenes(Dataset):
 
     def _sample_data(self, frame_id: str) -> tuple[dict[str, Any], dict[str, Any]]:
         token, _, camera = frame_id.partition("/")
-        nusc = self.devkit
         try:
-            data = nusc.get("sample", token)["data"]
-            return nusc.get("sample_data", data["LIDAR_TOP"]), nusc.get("sample_data", data[camera])
-        except KeyError as exc:
-            raise DataError(f"dataset 'nuscenes': no frame {frame_id!r} in {self.root / nusc.version} ({exc})") from exc
+            data = self.devkit.get("sample", token)["data"]
+        except KeyError:
+            raise DataError(f"dataset 'nuscenes': no frame {frame_id!r} in {self._tables / 'sample.json'}") from None
+        records = []
+        for channel in ("LIDAR_TOP", camera):
+            if channel not in data:
+                raise DataError(
+                    f"{self._tables / 'sample_data.json'}: no {channel} keyframe record for sample {token} (it has "
+                    f"{', '.join(sorted(data)) or 'none'})"
+                )
+            records.append(self._get("sample_data", data[channel], f"sample {token}"))
+        for record in records:
+            self._inside_root(record)
+        return records[0], records[1]
+
+    @property
+    def _tables(self) -> Path:
+        return self.root / self.conf["version"]
+
+    def _get(self, table: str, token: str, referrer: str) -> dict[str, Any]:
+        """A record by token; one the tables lack is an error naming the table, the token and who named it."""
+        try:
+            return self.devkit.get(table, token)
+        except KeyError:
+            raise DataError(
+                f"{self._tables / table}.json: no record with token {token} (named by {referrer})"
+            ) from None
+
+    def _inside_root(self, record: dict[str, Any]) -> None:
+        """Refuse a sample_data filename that is absolute or climbs out with `..`: tables name files under the
+        dataroot, and a crafted one read /etc/passwd. (Symlinks inside the dataroot may point anywhere: a dataroot
+        built from record folders links to them.)"""
+        name = str(record.get("filename", ""))
+        if not name or Path(name).is_absolute() or ".." in Path(name).parts:
+            raise DataError(
+                f"{self._tables / 'sample_data.json'}: record {record.get('token', '?')} names the file {name!r}, "
+                "which is not a path inside the dataroot (absolute, empty or through ..): refused"
+            )
 
     def calibration(self, frame_id: str) -> tuple[np.ndarray, np.ndarray]:
         """(K [3 x 3], T_cam_lidar [4 x 4]) of one frame."""
         lidar, cam = self._sample_data(frame_id)
-        get = self.devkit.get
-        cam_sensor = get("calibrated_sensor", cam["calibrated_sensor_token"])
-        tables = self.root / self.conf["version"]
+        cam_sensor = self._linked(cam, "calibrated_sensor")
+        tables = self._tables
         T = lidar_to_camera(
-            get("calibrated_sensor", lidar["calibrated_sensor_token"]),
-            get("ego_pose", lidar["ego_pose_token"]),
+            self._linked(lidar, "calibrated_sensor"),
+            self._linked(lidar, "ego_pose"),
             cam_sensor,
-            get("ego_pose", cam["ego_pose_token"]),
+            self._linked(cam, "ego_pose"),
             tables,
         )
         K = np.asarray(cam_sensor["camera_intrinsic"], dtype=np.float64)
         check_intrinsics(K, f"{tables / 'calibrated_sensor.json'}: token {cam_sensor['token']}: camera_intrinsic")
         return K, T
 
+    def _linked(self, record: dict[str, Any], table: str) -> dict[str, Any]:
+        """The `table` record a sample_data record points to (its calibrated_sensor or ego_pose)."""
+        return self._get(table, record[f"{table}_token"], f"sample_data {record['token']}")
+
     def ego_motion(self, lidar: dict[str, Any]) -> np.ndarray | None:
         """[6] the LiDAR's velocity (v m/s, w rad/s, in its frame) at the sweep: from the neighbouring sweeps' ego
         poses (the sample_data chain, 20 Hz) where the tables hold them, else from the ego pose of the sample's
         record furthest in time from the sweep (a camera, 10-45 ms off); only poses 5 ms to 0.2 s away count, so
         None where every sensor shares the sweep's timestamp (the synthetic dataroot's still scenes)."""
-        get, tables = self.devkit.get, self.root / self.conf["version"]
-        ego_from_lidar = record_matrix(
-            get("calibrated_sensor", lidar["calibrated_sensor_token"]), str(tables / "calibrated_sensor.json")
-        )
+        tables = self._tables
+        ego_from_lidar = record_matrix(self._linked(lidar, "calibrated_sensor"), str(tables / "calibrated_sensor.json"))
 
         def pose(record: dict[str, Any]) -> tuple[float, np.ndarray]:
-            ego = record_matrix(get("ego_pose", record["ego_pose_token"]), str(tables / "ego_pose.json"))
+            ego = record_matrix(self._linked(record, "ego_pose"), str(tables / "ego_pose.json"))
             return record["timestamp"] * 1e-6, ego @ ego_from_lidar
 
         near = self._near(lidar)
