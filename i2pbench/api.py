@@ -37,6 +37,7 @@ if TYPE_CHECKING:
     from .hookspecs import hookimpl
     from .learned import LearnedComponent
     from .methods import Method, MethodPreset, Row, Size
+    from .metric_registry import Metric, Scored
     from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
 
 __all__ = [
@@ -67,9 +68,11 @@ __all__ = [
     "Matches",
     "Method",
     "MethodPreset",
+    "Metric",
     "PoseEstimate",
     "PoseSolver",
     "Row",
+    "Scored",
     "SensorFrame",
     "Size",
     "StageError",
@@ -104,6 +107,7 @@ _MODULES = {
     "hookspecs": ("hookimpl",),
     "learned": ("LearnedComponent",),
     "methods": ("Method", "MethodPreset", "Row", "Size"),
+    "metric_registry": ("Metric", "Scored"),
     "types": ("Features", "Frame", "Keypoints2D", "Keypoints3D", "Matches", "PoseEstimate", "SensorFrame"),
 }
 _HOME = {name: module for module, names in _MODULES.items() for name in names}

@@ -90,6 +90,19 @@ def register_corruptions(register: Register) -> None:
     `register(cls)` or by path. A corruption changes what the stages see, never the ground truth."""
 
 
+@hookspec
+def register_metrics(register: Register) -> None:
+    """Register `i2pbench.api.Metric`s: `register(Metric(...))`, a per-frame value stored in every record and its
+    aggregate as a leaderboard column, read by `run`, `evaluate`, training validation and `compare`
+    (`i2pbench.metric_registry` says how to declare one)."""
+
+
+@hookspec
+def register_protocols(register: Register) -> None:
+    """Register protocol cards: `register(i2pbench.api.ProtocolCard(...))`, a paper's test inputs and scoring rules,
+    named and versioned, that `run --protocol NAME` runs under and `evaluate --rules NAME` scores by."""
+
+
 HOOK_NAMES: tuple[str, ...] = (
     "register_datasets",
     "register_extractors_2d",
@@ -103,6 +116,8 @@ HOOK_NAMES: tuple[str, ...] = (
     "register_weights",
     "register_methods",
     "register_corruptions",
+    "register_protocols",
+    "register_metrics",
 )
 
 # The hook that registers each stage kind.

@@ -17,18 +17,27 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from . import metric_registry
 from .components import STAGE_ORDER
-from .metrics import success, summarize
+from .metric_registry import (  # noqa: F401 (the board's column names, read from here by the other modules)
+    ACC,
+    ACC_SKILL,
+    CHANCE,
+    INLIER_RATIO,
+    MIN_TRUE_MATCHES,
+    RRE,
+    RRE_MEAN,
+    RTE,
+    RTE_MEAN,
+    TRUE_MATCHES,
+    Metric,
+)
+from .metrics import summarize
 from .protocol import Protocol
 
 GROUP = ["dataset", "split", "combination", "weights"]
 CONDITION = ["corruption", "severity"]  # a row's protocol corruption; "" for clean rows
-ACC, RTE, RRE = "Acc. (%) ↑", "RTE (m) ↓", "RRE (°) ↓"
-RTE_MEAN, RRE_MEAN = "rte_mean", "rre_mean"
 MODEL_SIZE = "model size (MB) ↓"
-INLIER_RATIO, TRUE_MATCHES = "inlier ratio (%) ↑", "true matches median ↑"
-CHANCE, ACC_SKILL = "chance successes", "Acc. with true matches (%) ↑"
-MIN_TRUE_MATCHES = 4  # fewer true matches than a PnP needs: a success on such a frame is luck, not registration
 LATENCY_PREFIX = "latency"
 LATENCY_MEDIAN, LATENCY_P90 = "latency median (ms) ↓", "latency p90 (ms) ↓"
 
@@ -58,64 +67,52 @@ def _latency(records: pd.DataFrame) -> dict[str, float]:
     return row
 
 
-def _match_quality(records: pd.DataFrame) -> dict[str, float]:
-    """Share of a frame's matches that are true under T_gt (within eps_c), averaged over the frames whose matcher
-    returned matches, and the median count of true matches over the frames whose matcher ran. What limits a
-    solver: RANSAC over EPnP needs a handful of true matches and a share it can sample from."""
-    if "n_true_matches" not in records:  # records written before the column existed
-        return {INLIER_RATIO: np.nan, TRUE_MATCHES: np.nan}
-    ran = records[records["n_true_matches"].notna()]
-    with_matches = ran[ran["n_matches"] > 0]
-    ratio = with_matches["n_true_matches"] / with_matches["n_matches"]
-    return {
-        INLIER_RATIO: round(100.0 * float(ratio.mean()), 2) if len(ratio) else np.nan,
-        TRUE_MATCHES: float(ran["n_true_matches"].median()) if len(ran) else np.nan,
-    }
+def _metric_cells(records: pd.DataFrame, protocol: Protocol, metrics: tuple[Metric, ...]) -> dict:
+    """Each registered metric's aggregate under its column (and a mean's std and "mean ± std" text columns)."""
+    named = metric_registry.aggregates(records, protocol, metrics)
+    cells: dict = {}
+    for metric in (m for m in metrics if m.column is not None):
+        cells[metric.column] = named[metric.name]
+        if metric.std:
+            cells[metric.std] = named[metric.std]
+        if metric.summary:
+            cells[metric.summary] = _pm(named[metric.name], named.get(metric.std, np.nan))
+    return cells
 
 
-def _chance(records: pd.DataFrame, protocol: Protocol) -> dict[str, float]:
-    """Successes on frames with fewer than MIN_TRUE_MATCHES true matches (a solver cannot have found the pose from
-    them), and Acc. counting only the other successes; NaN for records written before true matches were counted."""
-    if "n_true_matches" not in records:
-        return {CHANCE: np.nan, ACC_SKILL: np.nan}
-    won = success(records["rte_m"], records["rre_deg"], protocol).to_numpy()
-    true = records["n_true_matches"].to_numpy(dtype=float)
-    lucky = won & ~(true >= MIN_TRUE_MATCHES)  # NaN (the matcher never ran) counts as no true match
-    return {CHANCE: int(lucky.sum()), ACC_SKILL: round(100.0 * float((won & ~lucky).mean()), 2)}
+# The columns boards had before metrics were registered, in their order: a board keeps it, and what is new follows.
+ORDER = [ACC, RTE, RRE, RTE_MEAN, "rte_std", RRE_MEAN, "rre_std", metric_registry.GEODESIC_MEDIAN, INLIER_RATIO,
+         TRUE_MATCHES, CHANCE, ACC_SKILL]  # fmt: skip
 
 
-def _row(records: pd.DataFrame, protocol: Protocol) -> dict:
-    stats = summarize(records["rte_m"], records["rre_deg"], protocol)
+def _row(records: pd.DataFrame, protocol: Protocol, metrics: tuple[Metric, ...]) -> dict:
     first = records.iloc[0]
-    geo = records["geodesic_deg"].replace(np.inf, np.nan)
+    cells = _metric_cells(records, protocol, metrics)
     return {
         **{kind: first[kind] for kind in STAGE_ORDER},
         "weights_trained_on": first.get("weights_trained_on", ""),
         "frames": len(records),
         "failures": int((records["status"] != "ok").sum()),
-        "kept": stats["kept"],  # frames inside the protocol's filter, over which RTE and RRE are averaged
-        ACC: round(stats["acc_pct"], 2),
-        RTE: _pm(stats["rte_mean"], stats["rte_std"]),
-        RRE: _pm(stats["rre_mean"], stats["rre_std"]),
-        RTE_MEAN: stats["rte_mean"],
-        "rte_std": stats["rte_std"],
-        RRE_MEAN: stats["rre_mean"],
-        "rre_std": stats["rre_std"],
-        "geodesic median (°) ↓": float(np.nanmedian(geo)) if geo.notna().any() else np.nan,
-        **_match_quality(records),
-        **_chance(records, protocol),
+        # frames inside the protocol's filter, over which RTE and RRE are averaged
+        "kept": summarize(records["rte_m"], records["rre_deg"], protocol)["kept"],
+        **{column: cells.pop(column) for column in ORDER if column in cells},
         MODEL_SIZE: round(float(first["model_size_mb"]), 3),
         **_latency(records),
+        **cells,  # the metrics plugins register
     }
 
 
-def build(records: pd.DataFrame, protocol: Protocol | None = None) -> pd.DataFrame:
-    """Aggregate per-frame records into the leaderboard: clean rows first, then each corruption (in run order) by
-    severity, and within each of those best Acc. first."""
+def build(
+    records: pd.DataFrame, protocol: Protocol | None = None, metrics: tuple[Metric, ...] | None = None
+) -> pd.DataFrame:
+    """Aggregate per-frame records into the leaderboard, one column per registered metric (`metrics`, default
+    every installed one): clean rows first, then each corruption (in run order) by severity, and within each of
+    those best Acc. first."""
     protocol = protocol or Protocol()
+    metrics = metrics if metrics is not None else metric_registry.active()
     records = _with_condition(records)
     rows = [
-        {**dict(zip(GROUP + CONDITION, key, strict=True)), **_row(group, protocol)}
+        {**dict(zip(GROUP + CONDITION, key, strict=True)), **_row(group, protocol, metrics)}
         for key, group in records.groupby(GROUP + CONDITION, sort=False, dropna=False)
     ]
     board = pd.DataFrame(rows)

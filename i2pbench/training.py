@@ -28,12 +28,12 @@ import numpy as np
 import pandas as pd
 import torch
 
+from . import metric_registry
 from .batching import BatchForward, to_device
 from .components import TrainableMatcher
 from .data.base import Dataset
 from .errors import I2PBenchError, PluginError, WeightsError
-from .leaderboard import MIN_TRUE_MATCHES
-from .metrics import pose_errors, success, summarize
+from .metrics import summarize
 from .pipeline import Pipeline
 from .protocol import Protocol
 from .training_data import TrainingSamples, collate_samples
@@ -110,14 +110,6 @@ def compile_stages(stages: Mapping[str, Any], backend: str) -> list[str]:
 
 def _resume_path(out: Path) -> Path:
     return out.with_name(out.name + ".resume")
-
-
-def registered_pct(won: np.ndarray, true_matches: np.ndarray) -> float:
-    """% of frames registered with at least MIN_TRUE_MATCHES true matches: Acc. less its chance successes, what the
-    `best` checkpoint is judged by (a validation whose successes are luck would otherwise pick a lucky checkpoint)."""
-    if not len(won):
-        return math.nan
-    return 100.0 * float((won & (true_matches >= MIN_TRUE_MATCHES)).mean())
 
 
 def best_path(out: Path) -> Path:
@@ -322,33 +314,24 @@ class Trainer:
         return terms
 
     def validate(self) -> dict[str, float]:
-        """Acc./RTE/RRE of the full pipeline (solver included) on `val_frames` frames spread evenly over the val split
-        (so over its sequences, not the first one's first frames), protocol seed 0."""
+        """Every registered metric's aggregate on `val_frames` frames spread evenly over the val split (so over its
+        sequences, not the first one's first frames), protocol seed 0: each frame takes `run`'s path
+        (`runs.frames.run_frame`, a failed load a failed frame) and the records are aggregated as a board row is.
+        Keys are metric names (acc_pct, skill_acc_pct, ...)."""
         if self.val_set is None:
             return {}
-        from .runs.runner import true_matches
+        from .runs.frames import run_frame
+        from .runs.jobs import Job
 
         self.pipeline.eval()
-        protocol, rte, rre, true = Protocol(), [], [], []
-        for frame_id in spread(self.val_set.frame_ids(), self.config.val_frames):
-            try:
-                frame = protocol.apply(self.val_set.load(frame_id))
-            except I2PBenchError:
-                continue
-            outcome = self.pipeline.run(frame)
-            errors = pose_errors(outcome.estimate.T, frame.T_gt)
-            rte.append(errors.rte_m)
-            rre.append(errors.rre_deg)
-            true.append(true_matches(frame, outcome))
-        stats = summarize(rte, rre, protocol)
-        won = success(pd.Series(rte, dtype=float), pd.Series(rre, dtype=float), protocol).to_numpy()
-        counts = np.nan_to_num(np.asarray(true, dtype=float))
-        stats.update(
-            true_matches_median=float(np.median(counts)) if len(counts) else math.nan,
-            chance=float((won & (counts < MIN_TRUE_MATCHES)).sum()),  # successes a PnP cannot have earned
-            skill_acc_pct=registered_pct(won, counts),
-        )
-        return {"step": self.step, "frames": len(rte), **{k: v for k, v in stats.items() if not math.isnan(v)}}
+        protocol, job = Protocol(), Job(self.pipeline.combination, self.pipeline, str(self.device))
+        ids = spread(self.val_set.frame_ids(), self.config.val_frames)
+        records = pd.DataFrame([run_frame(job, self.val_set, frame_id, protocol) for frame_id in ids])
+        stats = metric_registry.aggregates(records, protocol) if len(records) else {}
+        if len(records):
+            stats["kept"] = summarize(records["rte_m"], records["rre_deg"], protocol)["kept"]
+        numbers = {k: float(v) for k, v in stats.items() if isinstance(v, int | float) and not math.isnan(v)}
+        return {"step": self.step, "frames": len(records), **numbers}
 
     def save(self, meta: dict[str, Any]) -> None:
         """checkpoint, then the resume file that names the checkpoint's bytes."""

@@ -3,7 +3,7 @@
 import pytest
 import toy_plugin
 
-from i2pbench.api import Corruption, Encoder3D, Exchanger, Method, Size, hookimpl
+from i2pbench.api import Corruption, Encoder3D, Exchanger, Method, Metric, Size, hookimpl
 from i2pbench.errors import PluginError
 from i2pbench.hookspecs import HOOK_NAMES, STAGE_HOOKS
 from i2pbench.plugins import build_registry, components_of
@@ -74,6 +74,10 @@ class EveryHook:
     def register_corruptions(self, register):
         register(CorruptionStub)
 
+    @hookimpl
+    def register_metrics(self, register):
+        register(Metric("stub_metric", "stub metric ↑", True, frame=lambda scored: 1.0))
+
 
 @pytest.fixture
 def registry(monkeypatch):
@@ -111,6 +115,7 @@ def test_datasets_presets_weights_and_corruptions_are_registered(registry):
     )
     assert listed["corruption"] == ["stub-corruption"]
     assert registry.method("stub-method").sizes == (Size("one"),) and listed["method"] == ["stub-method"]
+    assert registry.metrics["stub_metric"][0].column == "stub metric ↑" and listed["metric"] == ["stub_metric"]
 
 
 def test_a_class_of_the_wrong_kind_is_refused_naming_the_plugin(monkeypatch):

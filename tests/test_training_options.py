@@ -1,9 +1,8 @@
 """A researcher's training options: compiled blocks, deterministic kernels, TensorBoard, spread validation frames."""
 
 import json
-import math
 
-import numpy as np
+import pandas as pd
 import pytest
 import torch
 from i2pbench_edgeregnet.attention import AttentionExchanger
@@ -11,7 +10,9 @@ from i2pbench_edgeregnet.pointnet2 import PointNet2Encoder
 from test_edgeregnet_training import TINY, one_thread  # noqa: F401 (an autouse fixture)
 from test_train_cli import train
 
-from i2pbench.training import compile_stages, registered_pct, spread
+from i2pbench.metric_registry import aggregates
+from i2pbench.protocol import Protocol
+from i2pbench.training import compile_stages, spread
 from i2pbench.weights import load_checkpoint
 
 
@@ -67,8 +68,9 @@ def test_deterministic_compiled_training_logs_scalars_to_tensorboard(shared_data
 
 
 def test_the_best_checkpoint_is_judged_by_registrations_with_true_matches_not_by_chance():
-    won = np.array([True, True, True, False])
-    true_matches = np.array([12.0, 3.0, 0.0, 40.0])  # two successes with fewer than 4 true matches: chance
-    assert registered_pct(won, true_matches) == 25.0  # Acc. 75%, of which one frame in four earned
-    assert registered_pct(won, np.array([4.0, 4.0, 4.0, 4.0])) == 75.0  # 4 true matches is enough for a PnP
-    assert math.isnan(registered_pct(np.array([], bool), np.array([])))
+    """validation's skill_acc_pct is the board's 'Acc. with true matches' metric, declared once."""
+    records = pd.DataFrame({"rte_m": [0.1, 0.1, 0.1, 9.0], "rre_deg": [1.0, 1.0, 1.0, 1.0]})  # 3 of 4 succeed
+    stats = aggregates(records.assign(n_true_matches=[12.0, 3.0, 0.0, 40.0]), Protocol())
+    assert stats["acc_pct"] == 75.0 and stats["chance"] == 2  # two successes with fewer than 4 true matches
+    assert stats["skill_acc_pct"] == 25.0  # Acc. 75%, of which one frame in four earned
+    assert aggregates(records.assign(n_true_matches=4.0), Protocol())["skill_acc_pct"] == 75.0  # 4 is enough for PnP

@@ -2,7 +2,8 @@
 
 The records of one invocation's grid (its combinations, frames and protocol, as its `invocations/<id>.json` file
 lists them) are read back, their pose errors recomputed from the stored T_pred and T_gt, and the leaderboard built
-under the run's protocol card, or under other success and filter thresholds.
+under the run's protocol card, or under other success and filter thresholds, with every registered metric
+(`metric_registry`): one a plugin adds is aggregated from the per-frame values its records stored.
 """
 
 from __future__ import annotations
@@ -18,8 +19,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .. import __version__, leaderboard
+from .. import __version__, leaderboard, metric_registry
 from ..errors import I2PBenchError
+from ..metric_registry import Scored
 from ..metrics import FAILED, pose_errors
 from ..protocol import Protocol
 from .invocation import history, record_file, written_by
@@ -78,16 +80,14 @@ def readable(root: Path, meta: dict[str, Any]) -> Iterator[None]:
 
 
 def rescore(records: pd.DataFrame) -> pd.DataFrame:
-    """The records with rte_m, rre_deg and geodesic_deg computed again from T_pred and T_gt, as a run scores them."""
+    """The records with the registered metrics that read only the pose errors (rte_m, rre_deg, geodesic_deg)
+    computed again from T_pred and T_gt, as a run scores them; other per-frame metrics are read as stored."""
     errors = [
         pose_errors(_matrix(pred), gt) if (gt := _matrix(truth)) is not None else FAILED
         for pred, truth in zip(records["T_pred"], records["T_gt"], strict=True)
     ]
-    return records.assign(
-        rte_m=[e.rte_m for e in errors],
-        rre_deg=[e.rre_deg for e in errors],
-        geodesic_deg=[e.geodesic_deg for e in errors],
-    )
+    posed = [m for m in metric_registry.active() if m.from_poses and m.frame is not None]
+    return records.assign(**{m.name: [m.frame(Scored(None, None, e)) for e in errors] for m in posed})
 
 
 def _matrix(values: Any) -> np.ndarray | None:

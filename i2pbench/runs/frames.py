@@ -27,6 +27,7 @@ from ..correspondence import true_match_mask
 from ..corruptions import CorruptionError
 from ..data.base import Dataset
 from ..errors import I2PBenchError
+from ..metric_registry import Scored, record_values
 from ..metrics import pose_errors
 from ..pipeline import FrameOutcome
 from ..protocol import Protocol
@@ -170,14 +171,7 @@ def _record(
         "status": "ok" if T_pred is not None else "failed",
         "error": outcome.error,
         "failed_component": outcome.failed_component,
-        "rte_m": errors.rte_m,
-        "rre_deg": errors.rre_deg,
-        "geodesic_deg": errors.geodesic_deg,
-        "n_kp2d": outcome.n_kp2d,
-        "n_kp3d": outcome.n_kp3d,
-        "n_matches": outcome.n_matches,
-        "n_inliers": outcome.n_inliers,
-        "n_true_matches": true_matches(frame, outcome),
+        **record_values(Scored(frame, outcome, errors)),  # every registered per-frame metric
         "model_size_mb": job.pipeline.model_size_mb(),
         "threads": threads(),
         "device": job.device,
