@@ -13,6 +13,8 @@ from i2pbench.cli import main
 from i2pbench.errors import PluginError
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import build_registry, components_of
+from i2pbench.protocol import Protocol
+from i2pbench.runs.jobs import frame_key, prepare, upstream_key
 from i2pbench.runs.store import ResultsStore
 from i2pbench.training import TrainConfig, Trainer
 
@@ -104,3 +106,15 @@ def test_the_board_keeps_its_columns_order_and_appends_a_new_metric(registry):
     assert row[leaderboard.RTE] == "1.75 ± 1.25"  # both inside 10 m / 10°: mean (0.5+3)/2, population std 1.25
     assert row[leaderboard.INLIER_RATIO] == 50.0  # (8/10 + 2/10) / 2
     assert row[COLUMN] == 30.0  # (2 + 4) / 2 times 10
+
+
+def test_a_frame_keeps_the_cache_keys_it_had_before_metrics_were_registered(monkeypatch):
+    """metrics are computed from a frame's outputs, never part of what is computed: a frame's keys (dataset, stage
+    configs, weights, the default protocol card) are the ones computed at 47c4773, before the registry existed."""
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    registry = build_registry((toy_plugin,))
+    stages = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
+    (job,) = prepare(registry, [Combination(stages)])
+    dataset = registry.dataset("toy")("test")
+    assert frame_key(dataset, "a", job, Protocol()) == "b015e1602e1691ae355088c9-1c4d24f82c65"
+    assert upstream_key(dataset, "a", job, Protocol()) == "402cc086ad0fe077c2ecc145-1c4d24f82c65"
