@@ -5,7 +5,7 @@ import argparse
 import pytest
 import toy_plugin
 
-from i2pbench.commands.run import _combinations, parse_data_conf
+from i2pbench.commands.options import chosen_combinations, parse_data_conf
 from i2pbench.errors import PluginError
 from i2pbench.grid import base_combinations, expand, load_grid_file
 from i2pbench.plugins import build_registry, default_registry
@@ -68,8 +68,9 @@ def test_the_cli_merges_grid_file_and_options_with_options_winning(tmp_path, mon
     path.write_text(
         "base: {extractor3d: first, matcher: truth, solver: truth}\ngrid: {extractor2d: [grid, wrong-shape]}\n"
     )
-    assert len(_combinations(registry, _args(grid=str(path)))) == 2
-    assert _names(_combinations(registry, _args(grid=str(path), extractor2d=["grid"])), "extractor2d") == [("grid",)]
+    assert len(chosen_combinations(registry, _args(grid=str(path)))) == 2
+    chosen = chosen_combinations(registry, _args(grid=str(path), extractor2d=["grid"]))
+    assert _names(chosen, "extractor2d") == [("grid",)]
 
 
 def test_named_stages_need_no_default_preset(monkeypatch):
@@ -124,7 +125,7 @@ def test_exchange_ablation_is_table_iv():
 
 
 def test_stages_from_the_base_that_nothing_consumes_are_dropped_but_named_ones_kept():
-    from i2pbench.grid import base_combinations, expand
+    from i2pbench.grid import expand
     from i2pbench.plugins import default_registry
 
     registry = default_registry()
@@ -139,7 +140,7 @@ def test_stages_from_the_base_that_nothing_consumes_are_dropped_but_named_ones_k
 
 
 def test_extractor_caps_pinned_for_the_learned_stages_leave_with_them():
-    from i2pbench.grid import base_combinations, expand
+    from i2pbench.grid import expand
     from i2pbench.plugins import default_registry
 
     registry = default_registry()

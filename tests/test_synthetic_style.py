@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from i2pbench.cli import main
-from i2pbench.commands.run import open_dataset
+from i2pbench.commands.options import open_dataset
 from i2pbench.data.synthetic import GENERATOR_VERSION, SyntheticStreets
 from i2pbench.data.synthetic import dataset as synthetic_dataset
 from i2pbench.data.synthetic.dataset import MARKER, default_root, generate, marker

@@ -6,7 +6,7 @@ import argparse
 import sys
 import textwrap
 
-from .run import _split_list, add_data_options, open_dataset
+from .options import add_data_options, open_dataset, split_list
 
 COLUMNS = {  # the summary's columns, shown by --help; docs/diagnose.md says the same at more length
     "frames": "frames diagnosed",
@@ -42,8 +42,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         epilog=epilog(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--extractor", "--extractor2d", dest="extractor2d", type=_split_list, default=["lsd"])
-    p.add_argument("--extractor3d", type=_split_list, default=["depth+reflectance"])
+    p.add_argument("--extractor", "--extractor2d", dest="extractor2d", type=split_list, default=["lsd"])
+    p.add_argument("--extractor3d", type=split_list, default=["depth+reflectance"])
     p.add_argument("--radius", type=float, default=None, help="eps_c in pixels (default: the dataset's)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="write the per-pair summary as CSV here")

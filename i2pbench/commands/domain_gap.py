@@ -8,7 +8,7 @@ import textwrap
 from pathlib import Path
 from typing import Any
 
-from .run import add_data_options, open_dataset, positive_int, yaml_setting
+from .options import add_data_options, open_dataset, positive_int, yaml_setting
 
 DECILES = (10, 50, 90)
 STATISTICS = {  # the table's rows, in order (i2pbench.domain_gap computes them); docs/diagnose.md says the same

@@ -9,73 +9,34 @@ import time
 from pathlib import Path
 from typing import Any
 
-CONF_HELP = "component config override (VALUE is YAML)"
-DEVICE_HELP = "where learned stages run: auto (cuda if available), cpu, cuda, cuda:N, mps"
-STAGE_OPTIONS = {
-    "extractor2d": ("--extractor", "--extractor2d"),
-    "extractor3d": ("--extractor3d",),
-    "encoder2d": ("--encoder2d",),
-    "encoder3d": ("--encoder3d",),
-    "exchanger": ("--exchanger",),
-    "matcher": ("--matcher",),
-    "solver": ("--solver",),
-}
-
-
-def _split_list(value: str) -> list[str]:
-    return [v.strip() for v in value.split(",") if v.strip()]
-
-
-def positive_int(value: str) -> int:
-    """An argparse type: a count that must be at least 1 (`--frames -2` slicing off the last 2 frames is no count)."""
-    refusal = argparse.ArgumentTypeError(f"{value!r} is not a positive integer")
-    try:
-        number = int(value)
-    except ValueError:
-        raise refusal from None
-    if number < 1:
-        raise refusal
-    return number
-
-
-def severity_list(value: str) -> list[int]:
-    """An argparse type: `1,3,5`, the severities a corruption given without one runs at."""
-    return [positive_int(v) for v in _split_list(value)]
-
-
-def yaml_setting(value: str) -> str:
-    """An argparse type for KEY=VALUE options whose value is YAML: refuse malformed YAML while parsing options."""
-    import yaml
-
-    try:
-        yaml.safe_load(value.partition("=")[2])
-    except yaml.YAMLError as exc:
-        raise argparse.ArgumentTypeError(f"{value!r}: the value is not valid YAML ({_yaml_problem(exc)})") from None
-    return value
-
-
-def _yaml_problem(exc: Exception) -> str:
-    """PyYAML's one-line reason and position, without its multi-line excerpt."""
-    problem, mark = getattr(exc, "problem", None), getattr(exc, "problem_mark", None)
-    if problem is None:
-        return str(exc).splitlines()[0]
-    return f"{problem} at line {mark.line + 1}, column {mark.column + 1}" if mark else problem
+from .options import (
+    DEVICE_HELP,
+    STAGE_OPTIONS,
+    add_conf_option,
+    add_data_options,
+    add_stage_options,
+    check_confs,
+    chosen_combinations,
+    open_dataset,
+    positive_int,
+    severity_list,
+    split_list,
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run combinations of stages over a dataset split and print the leaderboard")
-    for kind, flags in STAGE_OPTIONS.items():
-        p.add_argument(*flags, dest=kind, type=_split_list, help=f"{kind} name(s), comma-separated; 'none' skips")
+    add_stage_options(p, "{kind} name(s), comma-separated; 'none' skips")
     p.add_argument("--preset", help="a registered list of combinations (e.g. edge-ablation); a,b: their union")
     p.add_argument("--grid", help="YAML grid file: base: {kind: name}, grid: {kind: [names]}, confs: {kind: {k: v}}")
-    p.add_argument("--conf", action="append", default=[], type=yaml_setting, metavar="KIND.KEY=VALUE", help=CONF_HELP)
+    add_conf_option(p)
     add_data_options(p)
     p.add_argument(
         "--weights", default="auto", help="'auto' (shipped checkpoint fitting the stages), 'untrained', or a path"
     )
     p.add_argument("--device", default="auto", help=DEVICE_HELP)
     p.add_argument("--seed", type=int, default=0, help="protocol seed for the random transforms")
-    p.add_argument("--corruption", type=_split_list, metavar="NAME[:SEVERITY],...", help="run under corruptions "
+    p.add_argument("--corruption", type=split_list, metavar="NAME[:SEVERITY],...", help="run under corruptions "
                    "(docs/robustness.md), each a set of rows: NAME at every severity, NAME:S, all, clean")  # fmt: skip
     p.add_argument("--severities", type=severity_list, metavar="S,...", help="severities for a corruption named "
                    "without one (e.g. 1,3,5)")  # fmt: skip
@@ -105,116 +66,6 @@ def add_scale_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def add_data_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--dataset", default="synthetic", help="dataset name (kitti, nuscenes, synthetic, ...)")
-    p.add_argument("--split", default="test")
-    p.add_argument("--data-root", help="dataset root directory (else I2PBENCH_<NAME>_ROOT)")
-    p.add_argument(
-        "--data-conf",
-        action="append",
-        default=[],
-        type=yaml_setting,
-        metavar="KEY=VALUE",
-        help="dataset config (YAML values; dotted keys nest, e.g. frames.test=3)",
-    )
-    p.add_argument("--frames", type=positive_int, default=None, help="use only the first N frames of the split")
-    add_split_options(p)
-
-
-def add_split_options(p: argparse.ArgumentParser) -> None:
-    """Splits by scene from a split file (kitti-drives; docs/datasets.md#kitti-drives)."""
-    p.add_argument("--split-file", metavar="NAME|PATH", help="the dataset's split file: a committed name "
-                   "(kitti-real-drives) or a path; datasets with a split_file config only")  # fmt: skip
-    p.add_argument("--fold", metavar="K/N", help="k-fold cross-validation by scene: test = fold K, val = fold K+1, "
-                   "train = the rest (datasets with a fold config only)")  # fmt: skip
-
-
-def split_conf(registry, args: argparse.Namespace, conf: dict[str, Any]) -> dict[str, Any]:
-    """`conf` with --split-file and --fold as the dataset's config, refused for a dataset without those keys."""
-    from ..errors import DataError
-
-    given = {"split_file": getattr(args, "split_file", None), "fold": getattr(args, "fold", None)}
-    for key, value in given.items():
-        if value is None:
-            continue
-        if key not in registry.dataset(args.dataset).default_conf:
-            option = "--" + key.replace("_", "-")
-            raise DataError(f"{option}: dataset {args.dataset!r} has no {key} config (kitti-drives has)")
-        conf[key] = value
-    return conf
-
-
-def parse_data_conf(items: list[str]) -> dict[str, Any]:
-    """`["frames.test=3"]` -> {"frames": {"test": 3}}."""
-    import yaml
-
-    from ..errors import DataError
-
-    conf: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise DataError(f"--data-conf {item!r}: expected KEY=VALUE")
-        *parents, leaf = key.split(".")
-        node = conf
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[leaf] = yaml.safe_load(value)
-    return conf
-
-
-def open_dataset(registry, args: argparse.Namespace):
-    conf = parse_data_conf(getattr(args, "data_conf", []))
-    if args.data_root:
-        conf["root"] = args.data_root
-    return registry.dataset(args.dataset)(args.split, split_conf(registry, args, conf))
-
-
-def _combinations(registry, args: argparse.Namespace):
-    from ..grid import base_combinations, expand, parse_conf_overrides
-
-    choices = {kind: getattr(args, kind) for kind in STAGE_OPTIONS if getattr(args, kind)}
-    bases = base_combinations(registry, args.preset, stages_named=bool(choices or args.grid))
-    confs = parse_conf_overrides(args.conf)
-    if args.grid:
-        grid = _grid_file(args.grid)
-        choices = {**{k: [v] for k, v in grid.base.items()}, **grid.grid, **choices}
-        confs = {k: {**grid.confs.get(k, {}), **confs.get(k, {})} for k in {*grid.confs, *confs}}
-    return expand(bases, choices, confs, registry)
-
-
-def _check_confs(registry, combinations) -> None:
-    """Each stage's config merged over its defaults before any folder is made: an unknown key or a value of another
-    kind is refused while nothing is written (Pipeline.build checks the same, but after the run's store exists)."""
-    from ..components import merge_conf
-
-    for combination in combinations:
-        for kind, conf in combination.confs.items():
-            component = registry.component(kind, combination.names[kind])
-            merge_conf(component.default_conf, conf, f"{kind} {component.name!r}")
-
-
-def _grid_file(path: str):
-    """The grid file, or a PluginError naming it when it cannot be read or is not a grid."""
-    import yaml
-
-    from ..errors import PluginError
-    from ..grid import load_grid_file
-
-    shape = "base: {kind: name}, grid: {kind: [names]}, confs: {kind: {key: value}}"
-    try:
-        grid = load_grid_file(path)
-    except OSError as exc:
-        raise PluginError(f"--grid {path}: cannot read it ({exc.strerror or exc})") from None
-    except yaml.YAMLError as exc:
-        raise PluginError(f"--grid {path}: not valid YAML ({_yaml_problem(exc)})") from None
-    except (AttributeError, TypeError, ValueError) as exc:
-        raise PluginError(f"--grid {path}: expected {shape} ({exc})") from None
-    if not (grid.base or grid.grid or grid.confs):  # an empty file ran the default pipeline as if it were the grid
-        raise PluginError(f"--grid {path}: the file names no stage; expected {shape}")
-    return grid
-
-
 def run(args: argparse.Namespace) -> int:
     from .. import leaderboard, progress
     from ..devices import resolve_device_name
@@ -230,8 +81,8 @@ def run(args: argparse.Namespace) -> int:
     threads = fix_threads(args.threads)
     args.device = resolve_device_name(args.device)  # resolved once: "auto" would read differently in the record
     registry = default_registry()
-    combinations = _combinations(registry, args)
-    _check_confs(registry, combinations)
+    combinations = chosen_combinations(registry, args)
+    check_confs(registry, combinations)
     dataset = open_dataset(registry, args)
     frame_ids = _frame_ids(dataset, args)
     if not frame_ids:

@@ -3,14 +3,24 @@
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .run import STAGE_OPTIONS, add_split_options, parse_data_conf, positive_int, split_conf, yaml_setting
+from .options import (
+    STAGE_OPTIONS,
+    add_conf_option,
+    add_split_options,
+    add_stage_options,
+    non_negative_int,
+    parse_data_conf,
+    positive_float,
+    positive_int,
+    split_conf,
+    yaml_setting,
+)
 
 if TYPE_CHECKING:  # the CLI starts without importing the training code
     from ..data.base import Dataset
@@ -19,10 +29,9 @@ if TYPE_CHECKING:  # the CLI starts without importing the training code
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("train", help="train a combination's learned stages on a dataset split")
-    for kind, flags in STAGE_OPTIONS.items():
-        p.add_argument(*flags, dest=kind, help=f"{kind} name ('none' skips)")
+    add_stage_options(p, "{kind} name ('none' skips)", many=False)
     p.add_argument("--preset", help="start from this preset's first combination (default: 'default')")
-    p.add_argument("--conf", action="append", default=[], metavar="KIND.KEY=VALUE", help="component config override")
+    add_conf_option(p)
     p.add_argument("--dataset", default="synthetic")
     p.add_argument("--split", default="train")
     p.add_argument(
@@ -100,27 +109,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--device", default="auto", help="auto, cpu, cuda, cuda:N")
     p.add_argument("--threads", type=positive_int, default=None, help="torch, OpenCV and BLAS threads")
     p.add_argument("--quiet", action="store_true")
-
-
-def non_negative_int(text: str) -> int:
-    """An argparse type: a count that may be 0 (`--workers 0`: data work in the main process)."""
-    if text.strip() == "0":
-        return 0
-    try:
-        return positive_int(text)
-    except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not 0 or a positive integer") from None
-
-
-def positive_float(text: str) -> float:
-    """An argparse type: a finite number above 0 (an inf or NaN learning rate trains NaN weights)."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{text!r} is not a finite positive number")
-    return value
 
 
 def augment_list(text: str) -> str:

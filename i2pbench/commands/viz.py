@@ -7,15 +7,13 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .run import (
-    CONF_HELP,
+from .options import (
     DEVICE_HELP,
-    STAGE_OPTIONS,
-    _combinations,
-    _split_list,
+    add_conf_option,
     add_data_options,
+    add_stage_options,
+    chosen_combinations,
     open_dataset,
-    yaml_setting,
 )
 
 if TYPE_CHECKING:
@@ -25,10 +23,9 @@ if TYPE_CHECKING:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("viz", help="draw one frame's LiDAR points under the initial, ground-truth and predicted poses")
     p.add_argument("frame", help="frame id (e.g. 00/000000) or its index in the split (e.g. 0)")
-    for kind, flags in STAGE_OPTIONS.items():
-        p.add_argument(*flags, dest=kind, type=_split_list, help=f"{kind} name; 'none' skips")
+    add_stage_options(p, "{kind} name; 'none' skips")
     p.add_argument("--preset", help="a registered preset; it must come down to one combination with the options")
-    p.add_argument("--conf", action="append", default=[], type=yaml_setting, metavar="KIND.KEY=VALUE", help=CONF_HELP)
+    add_conf_option(p)
     add_data_options(p)
     p.add_argument("--weights", default="auto", help="'auto', 'untrained', or a checkpoint path")
     p.add_argument("--device", default="auto", help=DEVICE_HELP)
@@ -66,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     fix_threads()
     device = str(resolve_device(args.device))
     registry = default_registry()
-    combinations = _combinations(registry, args)
+    combinations = chosen_combinations(registry, args)
     if len(combinations) != 1:
         labels = "; ".join(c.label for c in combinations)
         raise PluginError(f"viz draws one combination, these options give {len(combinations)}: {labels}")
