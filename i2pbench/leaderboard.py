@@ -121,7 +121,21 @@ def build(
     rank = board["corruption"].map(lambda c: 0 if c == "" else order[c]) * 100 + board["severity"]
     board = board.iloc[np.argsort(rank.to_numpy(), kind="stable")].reset_index(drop=True)
     board["severity"] = [str(int(v)) if c else "" for c, v in zip(board["corruption"], board["severity"], strict=True)]
+    board["method"] = _methods(board)
     return board[[*GROUP, *CONDITION, *(c for c in board.columns if c not in GROUP + CONDITION)]]
+
+
+def _methods(board: pd.DataFrame) -> list[str]:
+    """Each row's method (DeepI2P, EdgeRegNet, ...; "classic" for the classic plugin's matchers), as the installed
+    plugins declare them (`methods.method_of`)."""
+    from .methods import method_of
+    from .plugins import default_registry
+
+    registry = default_registry()
+    methods = {name: method for name, (method, _) in registry.methods.items()}
+    owner = {name: plugin for name, (_, plugin) in registry.components["matcher"].items()}
+    stages = board[list(STAGE_ORDER)].astype(str).to_dict("records")
+    return [method_of(methods, owner, row) for row in stages]
 
 
 def _with_condition(records: pd.DataFrame) -> pd.DataFrame:
@@ -141,6 +155,7 @@ def latency_columns(board: pd.DataFrame) -> list[str]:
 DISPLAY = [
     "dataset",
     "split",
+    "method",
     "combination",
     "corruption",
     "severity",

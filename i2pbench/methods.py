@@ -77,6 +77,15 @@ class Method:
     # `i2pbench weights import NAME FILE`: NAME -> "package.module:function", a function of the file's path returning
     # i2pbench.weights.ImportedWeights (another code base's checkpoint mapped onto one of the sizes)
     importers: Mapping[str, str] = field(default_factory=dict)
+    title: str = ""  # how boards name the method (their `method` column), e.g. "DeepI2P"; default: `name`
+
+    @property
+    def label(self) -> str:
+        return self.title or self.name
+
+    def components(self, kind: str) -> set[str]:
+        """The components this method runs at `kind`, at any of its sizes."""
+        return {stages[kind] for stages in (self.stages, *(s.stages for s in self.sizes)) if kind in stages}
 
     def size(self, name: str) -> Size:
         for size in self.sizes:
@@ -131,6 +140,20 @@ class Method:
             "weights": [Path(w).name for w in self.weights],
             "importers": sorted(self.importers),
         }
+
+
+OWN_KINDS = ("encoder2d", "encoder3d", "exchanger", "matcher")  # the stages a method's rows are recognised by
+
+
+def method_of(methods: Mapping[str, Method], owner: Mapping[str, str], stages: Mapping[str, str]) -> str:
+    """The `method` column of a row running `stages` (kind -> component name): the method one of whose own
+    components (an encoder, the exchanger, the matcher: in that order) the row runs, so an ablation row is still its
+    method's; else the plugin that registered the row's matcher (`owner`), e.g. "classic"; else ""."""
+    for kind in OWN_KINDS:
+        for method in methods.values():
+            if stages.get(kind, "none") != "none" and stages[kind] in method.components(kind):
+                return method.label
+    return owner.get(stages.get("matcher", "none"), "")
 
 
 def _describe_size(size: Size) -> dict[str, Any]:

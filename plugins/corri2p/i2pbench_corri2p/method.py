@@ -54,4 +54,5 @@ def corri2p() -> Method:
         tuple(sorted(WEIGHTS_DIR.glob("*.pt"))),
         "dense grid pixels and points, ResNet + PointNet++ encoders, global-feature exchange, overlap scores, "
         "similarity matching, EPnP",
+        title="CorrI2P",
     )

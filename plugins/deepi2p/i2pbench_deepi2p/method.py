@@ -53,6 +53,7 @@ def deepi2p() -> Method:
         tuple(sorted(WEIGHTS_DIR.glob("*.pt"))),
         "grid-cell centres and random points, ResNet + PointNet++ encoders, attention fusion into the points, "
         "per-point frustum and grid-cell classification; PnP on cell centres or inverse camera projection",
+        title="DeepI2P",
     )
     presets = (
         MethodPreset("deepi2p", (Row("cpu-size"),), "DeepI2P (CPU size), grid classification + EPnP-RANSAC"),

@@ -106,6 +106,7 @@ def edgeregnet() -> Method:
         tuple(sorted(WEIGHTS_DIR.glob("*.pt"))),
         "edge pixels and points, CNN + PointNet++ encoders, attention exchange, optimal matching, EPnP",
         importers={"edgeregnet-official": "i2pbench_edgeregnet.official_import:import_official"},
+        title="EdgeRegNet",
     )
 
 
