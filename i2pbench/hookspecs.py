@@ -97,6 +97,12 @@ def register_metrics(register: Register) -> None:
     (`i2pbench.metric_registry` says how to declare one)."""
 
 
+@hookspec
+def register_protocols(register: Register) -> None:
+    """Register protocol cards: `register(i2pbench.scoring.cards.ProtocolCard(...))`, a paper's test inputs and
+    scoring rules, named and versioned, that `run --protocol NAME` runs under and `evaluate --rules NAME` scores by."""
+
+
 HOOK_NAMES: tuple[str, ...] = (
     "register_datasets",
     "register_extractors_2d",
@@ -110,6 +116,7 @@ HOOK_NAMES: tuple[str, ...] = (
     "register_weights",
     "register_methods",
     "register_corruptions",
+    "register_protocols",
     "register_metrics",
 )
 

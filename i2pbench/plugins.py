@@ -115,6 +115,7 @@ class Registry:
     corruptions: dict[str, Entry] = field(default_factory=dict)
     aliases: dict[str, dict[str, Entry]] = field(default_factory=dict)  # table kind -> alias -> (name, plugin)
     methods: dict[str, Entry] = field(default_factory=dict)  # name -> (Method, plugin)
+    protocols: dict[str, Entry] = field(default_factory=dict)  # name -> (scoring.cards.ProtocolCard, plugin)
     metrics: dict[str, Entry] = field(default_factory=dict)  # name -> (metric_registry.Metric, plugin)
 
     def component(self, kind: str, name: str) -> type[Component]:
@@ -358,6 +359,19 @@ def _add_metric(registry: Registry, plugin: str, metric: Any) -> None:
     registry.metrics[metric.name] = (metric, plugin)
 
 
+def _add_protocol(registry: Registry, plugin: str, card: Any) -> None:
+    """A plugin's protocol card; a name another plugin (or the default card) has is refused, naming both."""
+    from .scoring.cards import EDGEREGNET, check
+
+    card = check(card, plugin)
+    if card.name == EDGEREGNET.name and card != EDGEREGNET:
+        raise PluginError(f"protocol {card.name!r} is i2pbench's default card; plugin {plugin!r} cannot replace it")
+    if card.name in registry.protocols and registry.protocols[card.name][0] is not card:
+        raise PluginError(f"protocol name {card.name!r} is registered by both plugin "
+                          f"{registry.protocols[card.name][1]!r} and {plugin!r}")  # fmt: skip
+    registry.protocols[card.name] = (card, plugin)
+
+
 def build_registry(extra_plugins: tuple[object, ...] = (), strict: bool = False) -> Registry:
     """The registry of the selected entry-point plugins plus `extra_plugins`, built-ins first; a plugin that fails
     is skipped whole and listed with its error (`strict`: PluginError)."""
@@ -388,6 +402,7 @@ def _copy(registry: Registry) -> Registry:
         corruptions=dict(registry.corruptions),
         aliases={kind: dict(table) for kind, table in registry.aliases.items()},
         methods=dict(registry.methods),
+        protocols=dict(registry.protocols),
         metrics=dict(registry.metrics),
     )
 
@@ -411,6 +426,8 @@ def _register(registry: Registry, pm: pluggy.PluginManager, plugin: str, strict:
         trial.weights.append((str(path), plugin))
     for args, kwargs in _collect(pm, plugin, "register_methods"):
         _add_method(trial, plugin, *args, **kwargs)
+    for (card,), _ in _collect(pm, plugin, "register_protocols"):
+        _add_protocol(trial, plugin, card)
     for args, kwargs in _collect(pm, plugin, "register_metrics"):
         _add_metric(trial, plugin, *args, **kwargs)
     for table in fields(Registry):
@@ -440,6 +457,9 @@ def components_of(registry: Registry, plugin: str) -> dict[str, list[str]]:
     methods = sorted(n for n, (_, p) in registry.methods.items() if p == plugin)
     if methods:
         out["method"] = methods
+    protocols = [n for n, (_, p) in registry.protocols.items() if p == plugin]
+    if protocols:
+        out["protocol"] = protocols
     metrics = sorted(n for n, (_, p) in registry.metrics.items() if p == plugin)
     if metrics:
         out["metric"] = metrics

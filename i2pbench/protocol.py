@@ -32,6 +32,8 @@ if TYPE_CHECKING:
     from .corruptions import Corruption
 
 CORRUPTION_FIELDS = ("corruption", "severity")
+CARD_FIELDS = ("name", "version")  # which protocol card (i2pbench.scoring.cards); left out for the default
+DEFAULT_NAME, DEFAULT_VERSION = "edgeregnet", 1
 
 
 @dataclass(frozen=True)
@@ -48,12 +50,18 @@ class Protocol:
     rre_convention: str = "xzy-sum"  # sum of |extrinsic 'xzy' Euler angles| of inv(T_pred) @ T_gt, as the peers
     corruption: str = ""  # a registered corruption's name; "" is the clean protocol
     severity: int = 0  # the corruption's severity, 1..its number of levels
+    name: str = DEFAULT_NAME  # the protocol card this protocol follows (`run --protocol NAME`)
+    version: int = DEFAULT_VERSION  # that card's version
     corrupter: Corruption | None = field(default=None, compare=False, repr=False)  # the component, when resolved
 
     def card(self) -> dict:
-        """The fields (the component itself is not one); a clean card leaves the corruption fields out."""
+        """The fields (the component itself is not one); a clean card leaves the corruption fields out and the
+        default card (edgeregnet v1) its name and version, so both keep the identity they had before those fields
+        existed."""
         card = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "corrupter"}
-        return card if self.corruption else {k: v for k, v in card.items() if k not in CORRUPTION_FIELDS}
+        left_out = () if self.corruption else CORRUPTION_FIELDS
+        left_out += CARD_FIELDS if (self.name, self.version) == (DEFAULT_NAME, DEFAULT_VERSION) else ()
+        return {k: v for k, v in card.items() if k not in left_out}
 
     def identity(self) -> str:
         return hashlib.sha256(json.dumps(self.card(), sort_keys=True).encode()).hexdigest()[:16]

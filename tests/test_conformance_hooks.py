@@ -7,6 +7,8 @@ from i2pbench.api import Corruption, Encoder3D, Exchanger, Method, Metric, Size,
 from i2pbench.errors import PluginError
 from i2pbench.hookspecs import HOOK_NAMES, STAGE_HOOKS
 from i2pbench.plugins import build_registry, components_of
+from i2pbench.scoring.cards import NATIVE, ProtocolCard
+from i2pbench.scoring.rules import ScoringRules
 
 
 class Encoder3DStub(Encoder3D):
@@ -78,6 +80,10 @@ class EveryHook:
     def register_metrics(self, register):
         register(Metric("stub_metric", "stub metric ↑", True, frame=lambda scored: 1.0))
 
+    @hookimpl
+    def register_protocols(self, register):
+        register(ProtocolCard("stub-protocol", 1, "stub", NATIVE, None, ScoringRules(rre="geodesic"), ("stub",)))
+
 
 @pytest.fixture
 def registry(monkeypatch):
@@ -116,6 +122,7 @@ def test_datasets_presets_weights_and_corruptions_are_registered(registry):
     assert listed["corruption"] == ["stub-corruption"]
     assert registry.method("stub-method").sizes == (Size("one"),) and listed["method"] == ["stub-method"]
     assert registry.metrics["stub_metric"][0].column == "stub metric ↑" and listed["metric"] == ["stub_metric"]
+    assert registry.protocols["stub-protocol"][0].rules.rre == "geodesic" and listed["protocol"] == ["stub-protocol"]
 
 
 def test_a_class_of_the_wrong_kind_is_refused_naming_the_plugin(monkeypatch):

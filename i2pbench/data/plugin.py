@@ -1,6 +1,6 @@
 """Entry point registering the built-in datasets and corruptions, by import path: each dataset's module (and what it
 imports, e.g. SciPy for nuScenes, the devkit only when that dataset is used) loads when the dataset is opened, and the
-corruptions' (OpenCV) when a run corrupts its frames."""
+corruptions' (OpenCV) when a run corrupts its frames; and the built-in protocol cards (i2pbench.scoring.cards)."""
 
 from ..hookspecs import hookimpl
 
@@ -28,6 +28,14 @@ def register_datasets(register) -> None:
     register("i2pbench.data.kitti_drives:KittiDrives", name="kitti-drives")
     register("i2pbench.data.nuscenes:NuScenes", name="nuscenes")
     register("i2pbench.data.synthetic:SyntheticStreets", name="synthetic")
+
+
+@hookimpl
+def register_protocols(register) -> None:
+    from ..scoring.cards import BUILTIN
+
+    for card in BUILTIN:
+        register(card)
 
 
 @hookimpl
