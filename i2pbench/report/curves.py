@@ -13,9 +13,10 @@ import io
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter
 
 from ..components import STAGE_ORDER
-from ..leaderboard import stage_latency
+from ..leaderboard import LATENCY_MEDIAN, stage_latency
 from ..protocol import Protocol
 
 ROW = ["combination", "weights"]  # one curve per leaderboard row of a dataset split
@@ -25,11 +26,15 @@ def row_label(combination: str, weights: str) -> str:
     return combination if weights in ("none", "") else f"{combination} ({weights})"
 
 
-def rows(records: pd.DataFrame, order: list[tuple[str, str]] | None = None) -> list[tuple[str, pd.DataFrame]]:
-    """[(label, records)] per (combination, weights), in `order` (e.g. the leaderboard's) when given."""
+def rows(
+    records: pd.DataFrame, order: list[tuple[str, str]] | None = None, labels: dict | None = None
+) -> list[tuple[str, pd.DataFrame]]:
+    """[(label, records)] per (combination, weights), in `order` (e.g. the leaderboard's) when given (an empty
+    order gives none); `labels` maps a key to its label (default `row_label`)."""
     groups = {key: group for key, group in records.groupby(ROW, sort=False)}
-    keys = [k for k in order if k in groups] if order else list(groups)
-    return [(row_label(*key), groups[key]) for key in keys]
+    keys = [k for k in order if k in groups] if order is not None else list(groups)
+    labels = labels or {}
+    return [(labels.get(key) or row_label(*key), groups[key]) for key in keys]
 
 
 def cumulative_pct(errors: pd.Series, thresholds: np.ndarray) -> np.ndarray:
@@ -102,20 +107,35 @@ def accuracy_curves(groups: list[tuple[str, pd.DataFrame]], protocol: Protocol) 
     return fig
 
 
-def latency_bars(board: pd.DataFrame) -> Figure:
-    """Median milliseconds per stage, stacked per leaderboard row (a stage absent from a row adds nothing)."""
+def latency_bars(board: pd.DataFrame, labels: list[str] | None = None) -> Figure:
+    """Left: median milliseconds per frame per leaderboard row on a log axis, so a 20 ms row stays visible beside
+    a 2 s one. Right: each stage's share of the row's summed stage medians (a stage absent from a row adds none)."""
     kinds = [k for k in STAGE_ORDER if stage_latency(k, "median") in board]
-    labels = [row_label(c, w) for c, w in zip(board["combination"], board["weights"], strict=True)]
-    fig = Figure(figsize=(11, 1.5 + 0.45 * len(board)), layout="constrained")
-    ax = fig.subplots()
+    labels = labels or [row_label(c, w) for c, w in zip(board["combination"], board["weights"], strict=True)]
+    fig = Figure(figsize=(11, 2.4 + 0.4 * len(board)), layout="constrained")
+    fig.suptitle("Latency per frame: median total (left), share of each stage (right)")
+    total_ax, share_ax = fig.subplots(1, 2, sharey=True, width_ratios=(3, 2))
+    total = board[LATENCY_MEDIAN].to_numpy(float)
+    total = np.where(np.isfinite(total) & (total > 0), total, np.nan)
+    floor = 10.0 ** (np.floor(np.log10(np.nanmin(total))) - 1) if np.isfinite(total).any() else 1.0
+    bars = total_ax.barh(labels, total - floor, left=floor, color="0.45")  # from a decade below the fastest
+    total_ax.bar_label(bars, labels=[f"{v:.3g} ms" if np.isfinite(v) else "-" for v in total], fontsize=8, padding=2)
+    total_ax.set_xscale("log")
+    total_ax.set_xlim(floor, 10.0 ** np.ceil(np.log10(np.nanmax(total) * 3)) if np.isfinite(total).any() else 10.0)
+    total_ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    total_ax.set(xlabel="median latency per frame (ms, log scale)")
+    total_ax.grid(True, axis="x", which="both", alpha=0.3)
+    total_ax.set_axisbelow(True)
+    stages = np.column_stack([board[stage_latency(k, "median")].fillna(0.0).to_numpy(float) for k in kinds] or [])
     left = np.zeros(len(board))
-    for kind in kinds:
-        ms = board[stage_latency(kind, "median")].fillna(0.0).to_numpy(float)
-        ax.barh(labels, ms, left=left, label=kind)
-        left += ms
-    ax.invert_yaxis()  # leaderboard order, top to bottom
-    ax.set(xlabel="median latency per frame (ms), by stage", title="Per-stage latency")
-    ax.tick_params(axis="y", labelsize=8)
+    for i, kind in enumerate(kinds):
+        summed = stages.sum(axis=1)
+        share = np.divide(100.0 * stages[:, i], summed, out=np.zeros(len(board)), where=summed > 0)
+        share_ax.barh(labels, share, left=left, label=kind)
+        left += share
+    share_ax.set(xlabel="share of the summed stage medians (%)", xlim=(0, 100))
+    total_ax.invert_yaxis()  # leaderboard order, top to bottom (the axes share y)
+    total_ax.tick_params(axis="y", labelsize=8)
     if kinds:
         fig.legend(fontsize=8, ncol=len(kinds), loc="outside lower center", frameon=False)
     return fig

@@ -2,6 +2,8 @@
 
 Self-contained so it can be mailed, attached to a CI run or opened offline. The only script sorts the leaderboard
 when a header is clicked; each cell carries its raw value in `data-sort`, so "0.03 ± 0.01" sorts by its mean.
+The leaderboard shows the columns a terminal board shows; rows scored on different frames (invocations with other
+--frames) go to separate tables, plus one of every row rescored on the frames all of them share.
 """
 
 from __future__ import annotations
@@ -16,23 +18,12 @@ import numpy as np
 import pandas as pd
 
 from .. import leaderboard as lb
-from . import curves, overlay, robustness
+from . import curves, framesets, overlay, robustness
 from .examples import Example, render_examples
 from .rundir import RunDir, load_run
 
-COLUMNS = [
-    "combination",
-    "weights",
-    "frames",
-    "failures",
-    lb.ACC,
-    lb.RTE,
-    lb.RRE,
-    "geodesic median (°) ↓",
-    lb.MODEL_SIZE,
-    lb.LATENCY_MEDIAN,
-    lb.LATENCY_P90,
-]
+EXTRA = ["geodesic median (°) ↓"]  # the report's own column beside the ones a terminal board shows
+IN_TITLE = ("dataset", "split")  # one runs directory holds one dataset split, which the page's title names
 SORT_BY = {lb.RTE: lb.RTE_MEAN, lb.RRE: lb.RRE_MEAN}  # "mean ± std" text columns sort by their mean
 
 CSS = """
@@ -42,7 +33,8 @@ table { border-collapse: collapse; font-size: 13px; }
 th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: right; }
 th { background: #f3f3f3; cursor: pointer; user-select: none; white-space: nowrap; }
 th[aria-sort=ascending]::after { content: " ▲"; } th[aria-sort=descending]::after { content: " ▼"; }
-td:first-child, td:nth-child(2) { text-align: left; }
+td { white-space: nowrap; } td.text { text-align: left; }
+h3 { font-size: 15px; margin: 20px 0 6px; }
 img { max-width: 100%; display: block; margin: 8px 0; }
 figure { margin: 16px 0; } figcaption { font-weight: 600; }
 .meta { color: #555; font-size: 13px; } .note { color: #8a4b00; }
@@ -102,10 +94,12 @@ def render(
     notes: list[str],
     robust: robustness.Section | None = None,
 ) -> str:
-    groups = curves.rows(run.records, list(zip(board["combination"], board["weights"], strict=True)))
+    sets = framesets.split(board, run.records)
+    labels = _labels(board, run.records, sets)
+    groups = curves.rows(run.records, list(labels), labels)
     sections = [
         _header(run, notes),
-        _section("Leaderboard", _explain_board(run), table(board)),
+        _section("Leaderboard", _explain_board(run), _boards(run, sets)),
         _section(
             "Cumulative errors",
             f"Share of all frames (failures included) under each error. {overlay.RRE_NOTE}.",
@@ -118,8 +112,8 @@ def render(
         ),
         _section(
             "Latency",
-            "Median per stage, over the frames whose pipeline ran to the end.",
-            _png(curves.latency_bars(board), "per-stage latency"),
+            "Median per frame over the frames whose pipeline ran to the end (log axis), and each stage's share.",
+            _png(curves.latency_bars(board, list(labels.values())), "per-stage latency"),
         ),
         _section("Best and worst frames", _explain_examples(), "".join(_figure(e) for e in examples)),
         _robustness(robust) if robust else "",
@@ -132,19 +126,57 @@ def render(
     )
 
 
+def board_columns(board: pd.DataFrame) -> list[str]:
+    """Every column a terminal board shows (leaderboard.DISPLAY, less those empty in every row), then EXTRA; the
+    dataset and split only when rows differ in them."""
+    shown = [c for c in lb.DISPLAY if c in board and not (board[c].astype(str) == "").all()]
+    shown = [c for c in shown if c not in IN_TITLE or board[c].nunique() > 1]
+    return shown + [c for c in EXTRA if c in board and c not in shown]
+
+
 def table(board: pd.DataFrame, columns: list[str] | None = None) -> str:
     """The leaderboard (or `columns` of another table) as a sortable HTML table, in the table's order."""
-    columns = [c for c in (columns or COLUMNS) if c in board]
+    columns = [c for c in columns if c in board] if columns else board_columns(board)
     head = "".join(f"<th>{escape(c)}</th>" for c in columns)
+    text = {c for c in columns if not pd.api.types.is_numeric_dtype(board[c]) and c not in SORT_BY}  # words: left
     body = "".join(
-        "<tr>" + "".join(_cell(row[c], row.get(SORT_BY.get(c, c))) for c in columns) + "</tr>\n"
+        "<tr>" + "".join(_cell(row[c], row.get(SORT_BY.get(c, c)), c in text) for c in columns) + "</tr>\n"
         for _, row in board.iterrows()
     )
     return f'<table class="sortable"><thead><tr>{head}</tr></thead><tbody>\n{body}</tbody></table>'
 
 
-def _cell(value: object, sort_value: object) -> str:
-    return f'<td data-sort="{escape(_sort_text(sort_value))}">{escape(_display(value))}</td>'
+def _boards(run: RunDir, sets: list[framesets.FrameSet]) -> str:
+    """One table when every row ran the same frames; else one per frame set and one of all rows on the shared
+    frames, each headed by its frames."""
+    if len(sets) == 1:
+        return table(sets[0].board)
+    shared = framesets.shared_board(run.records, sets, run.protocol)
+    parts = [
+        f"<p class=note>These rows ran on {len(sets)} different sets of frames (invocations with other --frames or "
+        "splits): each table holds the rows scored on the same frames; compare rows within a table, not across."
+        + ("" if shared else " No frame is shared by every row.")
+        + "</p>"
+    ]
+    for i, s in enumerate(sets, start=1):
+        parts.append(f"<h3>Frame set {i}, {escape(framesets.describe(s.frames))}</h3>{table(s.board)}")
+    if shared:
+        title = f"Every row on the frames all rows ran, {framesets.describe(shared.frames)}"
+        parts.append(f"<h3>{escape(title)}</h3>{table(shared.board)}")
+    return "".join(parts)
+
+
+def _labels(board: pd.DataFrame, records: pd.DataFrame, sets: list[framesets.FrameSet]) -> dict:
+    """(combination, weights) -> its label in the figures, with its frame count when rows ran different frames."""
+    frames = framesets.row_frames(records)
+    keys = list(zip(board["combination"], board["weights"], strict=True))
+    suffix = (lambda key: f" [{len(frames[key])} frames]") if len(sets) > 1 else (lambda key: "")
+    return {key: curves.row_label(*key) + suffix(key) for key in keys}
+
+
+def _cell(value: object, sort_value: object, text: bool = False) -> str:
+    kind = " class=text" if text else ""
+    return f'<td{kind} data-sort="{escape(_sort_text(sort_value))}">{escape(_display(value))}</td>'
 
 
 def _display(value: object) -> str:

@@ -1,0 +1,154 @@
+"""Issue 31, first contact 3: the report of a runs folder made by two invocations on different frames puts rows on
+the same frames in one table (one per frame set, and one of every row on the shared frames), shows every column the
+terminal board shows, and draws latency on a log axis with a unit under an uncut title. Checked in headless Chromium
+as the report's own test does."""
+
+from __future__ import annotations
+
+import html
+import json
+import re
+from pathlib import Path
+
+import pytest
+from test_cli_errors import i2pbench
+from test_report_html import KITTI, TRAP, chromium
+
+from i2pbench import leaderboard as lb
+from i2pbench.report import curves
+from i2pbench.report.rundir import load_run
+
+CLASSIC = ["--extractor3d", "depth", "--matcher", "oracle", "--solver", "epnp-ransac"]
+LSD, CANNY = (f"{name} &gt; depth &gt; oracle &gt; epnp-ransac" for name in ("lsd", "canny"))
+
+
+def _run(runs: Path, extractors: str, frames: int):
+    args = ["run", "--dataset", "kitti", "--split", "all", "--data-root", str(KITTI), *CLASSIC]
+    args += ["--extractor", extractors, "--frames", str(frames), "--runs-dir", str(runs), "--quiet"]
+    done = i2pbench(*args, cwd=runs.parent)
+    assert done.returncode == 0, done.stderr
+    return done
+
+
+@pytest.fixture(scope="module")
+def two_invocations(tmp_path_factory) -> tuple[Path, list[str], Path]:
+    """canny on 3 frames, then lsd and canny on 2 (canny's 2 come from the cache): canny's row holds 3 frames,
+    lsd's 2. Gives (runs folder, the header of the second invocation's terminal board, the report)."""
+    if not KITTI.is_dir():
+        pytest.skip(f"{KITTI} is not present")
+    runs = tmp_path_factory.mktemp("two") / "runs"
+    _run(runs, "canny", 3)
+    board = _run(runs, "lsd,canny", 2).stdout
+    header = next(line for line in board.splitlines() if line.startswith("| dataset"))
+    columns = [c.strip() for c in header.strip("|").split("|")]
+    out = runs.parent / "report.html"
+    done = i2pbench("report", str(runs / "kitti-all"), "--out", str(out), "--overlays", "0", "--quiet", cwd=runs.parent)
+    assert done.returncode == 0, done.stderr
+    return runs / "kitti-all", columns, out
+
+
+def _tables(text: str) -> list[tuple[str, list[str]]]:
+    """[(heading before the table, [first cell of each body row])] of every table on the page."""
+    found = re.findall(r"(?:<h3>([^<]*)</h3>)?<table class=\"sortable\">(.*?)</table>", text, flags=re.S)
+    return [(heading, re.findall(r"<tr><td[^>]*>([^<]*)</td>", body)) for heading, body in found]
+
+
+def test_rows_on_different_frames_are_split_into_one_table_per_frame_set_and_a_shared_one(two_invocations):
+    _, _, page = two_invocations
+    text = page.read_text()
+    assert "These rows ran on 2 different sets of frames" in text
+    assert _tables(text) == [
+        ("Frame set 1, 3 frames: 00/000000, 00/000001, 00/000002", [CANNY]),
+        ("Frame set 2, 2 frames: 00/000000, 00/000001", [LSD]),
+        ("Every row on the frames all rows ran, 2 frames: 00/000000, 00/000001", [LSD, CANNY]),
+    ]
+    frames = re.findall(r"<th>frames</th>", text)
+    assert len(frames) == 3
+    # each table's frames column holds its heading's count: canny 3 alone, lsd 2 alone, then both on 2
+    counts = [re.findall(r'<td data-sort="(\d+)">\1</td><td data-sort="\d+">\d+</td><td data-sort="[\d.]+">', body)
+              for body in re.findall(r"<tbody>(.*?)</tbody>", text, flags=re.S)]  # fmt: skip
+    assert [c[0] for c in counts[:2]] == ["3", "2"] and counts[2][:2] == ["2", "2"]
+
+
+def test_the_curves_name_each_rows_frame_count_when_rows_ran_different_frames(two_invocations):
+    run_dir, _, _ = two_invocations
+    from i2pbench.report.framesets import split
+    from i2pbench.report.html import _labels
+
+    run = load_run(run_dir)
+    board = lb.build(run.records, run.protocol)
+    labels = _labels(board, run.records, split(board, run.records))
+    assert sorted(labels.values()) == [
+        "canny > depth > oracle > epnp-ransac [3 frames]",
+        "lsd > depth > oracle > epnp-ransac [2 frames]",
+    ]
+
+
+def test_the_report_shows_every_column_the_terminal_board_shows(two_invocations):
+    _, columns, page = two_invocations
+    text = page.read_text()
+    heads = re.findall(r"<thead><tr>(.*?)</tr></thead>", text)
+    assert len(heads) == 3
+    for head in heads:
+        shown = re.findall(r"<th>([^<]*)</th>", head)
+        missing = [c for c in columns if c not in ("dataset", "split") and c.replace("&", "&amp;") not in shown]
+        assert missing == [], shown
+    assert {lb.CHANCE, lb.ACC_SKILL} <= set(columns)  # the columns issue 31 found missing are among them
+    assert "<h1>i2pbench report: kitti/all</h1>" in text  # dataset and split: named once, in the title
+
+
+def test_weights_trained_on_is_a_column_when_a_row_has_weights():
+    import pandas as pd
+
+    from i2pbench.report.html import board_columns
+
+    board = pd.DataFrame({"combination": ["a", "b"], "weights": ["w.pt", "none"], "weights_trained_on": ["kitti", ""]})
+    assert board_columns(board) == ["combination", "weights", "weights_trained_on"]
+    assert board_columns(board.assign(weights_trained_on="")) == ["combination", "weights"]
+
+
+def test_the_latency_chart_has_a_log_axis_in_ms_and_an_uncut_title(two_invocations):
+    run_dir, _, _ = two_invocations
+    run = load_run(run_dir)
+    board = lb.build(run.records, run.protocol)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    for rows in (board.iloc[:1], board):  # one row gave the shortest figure
+        fig = curves.latency_bars(rows)
+        canvas = FigureCanvasAgg(fig)
+        canvas.draw()  # lays the figure out as png() does
+        total, share = fig.axes
+        assert total.get_xscale() == "log" and "(ms, log scale)" in total.get_xlabel()
+        assert share.get_xlabel() == "share of the summed stage medians (%)"
+        title = fig._suptitle.get_window_extent(canvas.get_renderer())
+        assert fig.bbox.x0 <= title.x0 and title.x1 <= fig.bbox.x1 and title.y1 <= fig.bbox.y1
+    fastest = board[lb.LATENCY_MEDIAN].min()
+    assert total.get_xlim()[0] < fastest / 5  # the fastest row's bar is drawn, not hidden at the axis' edge
+
+
+def test_no_overlays_asked_draws_none(two_invocations):
+    _, _, page = two_invocations
+    assert "<figure>" not in page.read_text()
+
+
+def test_the_split_tables_render_and_sort_each_on_its_own_in_headless_chromium(two_invocations, tmp_path):
+    _, _, page = two_invocations
+    probe = """<script>
+    var tables = document.querySelectorAll("table.sortable"), d = document.documentElement, seen = [];
+    tables.forEach(function (t) { t.querySelectorAll("th")[0].click(); t.querySelectorAll("th")[0].click(); });
+    tables.forEach(function (t) {
+      seen.push(Array.prototype.map.call(t.tBodies[0].rows, function (r) { return r.cells[0].textContent; }));
+    });
+    d.setAttribute("data-rows", JSON.stringify(seen));
+    d.setAttribute("data-headings", Array.prototype.map.call(document.querySelectorAll("h3"),
+      function (h) { return h.textContent; }).join("|"));
+    </script>"""
+    probed = tmp_path / "probed.html"
+    probed.write_text(page.read_text().replace("<head>", "<head>" + TRAP, 1).replace("</body>", probe + "</body>", 1))
+    dom = chromium("--dump-dom", probed.as_uri(), tmp=tmp_path).stdout
+    assert "<html" in dom and 'data-js-errors="' not in dom
+    rows = json.loads(html.unescape(re.search(r'data-rows="([^"]*)"', dom).group(1)))
+    lsd, canny = html.unescape(LSD), html.unescape(CANNY)
+    assert rows == [[canny], [lsd], [lsd, canny]]  # sorted by name, descending: each table keeps only its own rows
+    headings = html.unescape(re.search(r'data-headings="([^"]*)"', dom).group(1)).split("|")
+    assert [h.split(",")[0] for h in headings] == ["Frame set 1", "Frame set 2", "Every row on the frames all rows ran"]
