@@ -9,50 +9,13 @@ torch.inference_mode, training with autograd on.
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 import time
-from collections.abc import Callable
-from typing import Any
 
 from . import contracts
 from .components import FEATURES2D, FEATURES3D, GROUND_TRUTH, Component
-from .trace import StageRecord
-from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches
-
-
-@dataclasses.dataclass(frozen=True)
-class StageInputs:
-    """What the stages before one have produced so far: the values a stage of any kind may be handed."""
-
-    kp2d: Keypoints2D | None = None
-    kp3d: Keypoints3D | None = None
-    features: Features = dataclasses.field(default_factory=lambda: Features(None, None))
-    matches: Matches | None = None
-
-    def after(self, record: StageRecord) -> StageInputs:
-        """These inputs with a finished stage's output put where the stages after it read it."""
-        out, f = record.output, self.features
-        if record.kind == "encoder2d":
-            return dataclasses.replace(self, features=Features(out, f.desc3d))
-        if record.kind == "encoder3d":
-            return dataclasses.replace(self, features=Features(f.desc2d, out))
-        field = _FEEDS.get(record.kind)  # None for the solver: nothing reads its output
-        return self if field is None else dataclasses.replace(self, **{field: out})
-
-
-_FEEDS = {"extractor2d": "kp2d", "extractor3d": "kp3d", "exchanger": "features", "matcher": "matches"}
-
-# the arguments after the frame that a stage of each kind is called with, from its inputs and declared features
-_ARGUMENTS: dict[str, Callable[[StageInputs, Features], tuple[Any, ...]]] = {
-    "extractor2d": lambda i, f: (),
-    "extractor3d": lambda i, f: (),
-    "encoder2d": lambda i, f: (i.kp2d,),
-    "encoder3d": lambda i, f: (i.kp3d,),
-    "exchanger": lambda i, f: (i.kp2d, i.kp3d, f),
-    "matcher": lambda i, f: (i.kp2d, i.kp3d, f),
-    "solver": lambda i, f: (i.kp2d, i.kp3d, i.matches),
-}
+from .trace import StageInputs, StageRecord
+from .types import Features, Frame
 
 
 def declared_view(component: Component, frame: Frame, features: Features) -> tuple[Frame, Features]:
@@ -69,15 +32,15 @@ def call_stage(component: Component, frame: Frame, inputs: StageInputs) -> Stage
     """Call `component` as a stage of its kind: the declared view, then the call (timed alone), then the contract
     check of its output (a `contracts.ContractError` naming it)."""
     view, features = declared_view(component, frame, inputs.features)
-    args = _ARGUMENTS[component.kind](inputs, features)
+    args = inputs.arguments(component.kind, features)
     start = time.perf_counter()
     out = component(view, *args)
     _synchronize()
     seconds = time.perf_counter() - start
     n2d = len(inputs.kp2d) if inputs.kp2d is not None else 0
     n3d = len(inputs.kp3d) if inputs.kp3d is not None else 0
-    checked = contracts.check_output(component.kind, out, frame, n2d, n3d, component.label, component.provides)
-    return StageRecord(component.kind, component.label, checked, seconds)
+    handed = contracts.Handed(frame, n2d, n3d, component.label, component.provides)
+    return StageRecord(component.kind, component.label, contracts.check_output(component.kind, out, handed), seconds)
 
 
 def _synchronize() -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 from .errors import PluginError
@@ -229,7 +230,39 @@ class PoseSolver(Component):
         raise NotImplementedError
 
 
-STAGE_BASES: dict[str, type[Component]] = {
-    cls.kind: cls for cls in (Extractor2D, Extractor3D, Encoder2D, Encoder3D, Exchanger, Matcher, PoseSolver)
-}
-STAGE_ORDER: tuple[str, ...] = tuple(STAGE_BASES)
+@dataclass(frozen=True)
+class StageKind:
+    """One stage kind as the whole core reads it: registry, hooks, command line, calls, trace and contract checks.
+    Adding a kind is one entry in STAGES (in data-flow order), its base class above, its hookspec and its contract."""
+
+    base: type[Component]  # what its components subclass; `base.kind` names the kind
+    hook: str  # the hookspec (i2pbench.hookspecs) its components are registered through
+    options: tuple[str, ...]  # its command-line options (run, train, viz)
+    inputs: tuple[str, ...]  # what it is called with after the frame, fields of `trace.StageInputs`, in order
+    output: str  # the `StageInputs` field its output becomes ("features.desc2d": one side; "": none reads it)
+    contract: str  # the function of i2pbench.contracts that checks its output before anything reads it
+    required: bool = False  # a combination without it is refused
+
+    @property
+    def kind(self) -> str:
+        return self.base.kind
+
+
+STAGES: dict[str, StageKind] = {
+    spec.kind: spec
+    for spec in (
+        StageKind(Extractor2D, "register_extractors_2d", ("--extractor", "--extractor2d"), (), "kp2d", "keypoints2d",
+                  required=True),
+        StageKind(Extractor3D, "register_extractors_3d", ("--extractor3d",), (), "kp3d", "keypoints3d", required=True),
+        StageKind(Encoder2D, "register_encoders_2d", ("--encoder2d",), ("kp2d",), "features.desc2d", "descriptors2d"),
+        StageKind(Encoder3D, "register_encoders_3d", ("--encoder3d",), ("kp3d",), "features.desc3d", "descriptors3d"),
+        StageKind(Exchanger, "register_exchangers", ("--exchanger",), ("kp2d", "kp3d", "features"), "features",
+                  "features"),
+        StageKind(Matcher, "register_matchers", ("--matcher",), ("kp2d", "kp3d", "features"), "matches", "matches",
+                  required=True),
+        StageKind(PoseSolver, "register_pose_solvers", ("--solver",), ("kp2d", "kp3d", "matches"), "", "estimate",
+                  required=True),
+    )
+}  # fmt: skip
+STAGE_BASES: dict[str, type[Component]] = {kind: spec.base for kind, spec in STAGES.items()}
+STAGE_ORDER: tuple[str, ...] = tuple(STAGES)

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import math
 import sys
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .components import FRUSTUM_SCORES
+from .components import FRUSTUM_SCORES, STAGES
 from .errors import StageError
 from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
 
@@ -139,19 +140,46 @@ def check_estimate(estimate: object, component: str) -> PoseEstimate:
     return estimate
 
 
-def check_output(
-    kind: str, out: object, frame: Frame, n2d: int, n3d: int, component: str, provides: frozenset[str] = frozenset()
-) -> Any:
-    """`out` checked as the output of a stage of `kind`, given the frame and the keypoint counts it was handed, and
-    the values the component declares it `provides` beyond its kind's (a matcher's FRUSTUM_SCORES)."""
-    if kind == "extractor2d":
-        return check_keypoints2d(out, frame, component)
-    if kind == "extractor3d":
-        return check_keypoints3d(out, frame, component)
-    if kind in ("encoder2d", "encoder3d"):
-        return check_descriptors(out, n2d if kind == "encoder2d" else n3d, component)
-    if kind == "exchanger":
-        return check_features(out, n2d, n3d, component)
-    if kind == "matcher":
-        return check_matches(out, n2d, n3d, component, FRUSTUM_SCORES in provides)
-    return check_estimate(out, component)  # the solver's
+@dataclass(frozen=True)
+class Handed:
+    """What a stage was handed, as the check of its output needs it."""
+
+    frame: Frame
+    n2d: int  # 2D keypoints it was given (0 before the extractors ran)
+    n3d: int  # 3D keypoints
+    component: str  # its label, which a violation names
+    provides: frozenset[str] = frozenset()  # what it declares beyond its kind's output (a matcher's FRUSTUM_SCORES)
+
+
+# Each kind's contract, named by its `components.StageKind.contract`: (output, what the stage was handed) -> output.
+def keypoints2d(out: object, h: Handed) -> Keypoints2D:
+    return check_keypoints2d(out, h.frame, h.component)
+
+
+def keypoints3d(out: object, h: Handed) -> Keypoints3D:
+    return check_keypoints3d(out, h.frame, h.component)
+
+
+def descriptors2d(out: object, h: Handed) -> torch.Tensor | None:
+    return check_descriptors(out, h.n2d, h.component)
+
+
+def descriptors3d(out: object, h: Handed) -> torch.Tensor | None:
+    return check_descriptors(out, h.n3d, h.component)
+
+
+def features(out: object, h: Handed) -> Features:
+    return check_features(out, h.n2d, h.n3d, h.component)
+
+
+def matches(out: object, h: Handed) -> Matches:
+    return check_matches(out, h.n2d, h.n3d, h.component, FRUSTUM_SCORES in h.provides)
+
+
+def estimate(out: object, h: Handed) -> PoseEstimate:
+    return check_estimate(out, h.component)
+
+
+def check_output(kind: str, out: object, handed: Handed) -> Any:
+    """`out` checked as the output of a stage of `kind` by that kind's contract."""
+    return globals()[STAGES[kind].contract](out, handed)

@@ -25,8 +25,6 @@ from . import contracts, interrupts
 from .calling import StageInputs, call_stage
 from .components import (
     EXTRA_VALUES,
-    FEATURES2D,
-    FEATURES3D,
     FRUSTUM_SCORES,
     GROUND_TRUTH,
     IMAGE,
@@ -34,7 +32,9 @@ from .components import (
     KEYPOINTS3D,
     MATCHES,
     POINTS,
+    STAGE_BASES,
     STAGE_ORDER,
+    STAGES,
     Component,
 )
 from .errors import PluginError, StageError
@@ -50,7 +50,7 @@ if TYPE_CHECKING:  # a pipeline of classic stages runs without torch; learned st
     from .learned import LearnedComponent
 
 NONE = "none"  # a stage set to "none" is skipped
-REQUIRED_STAGES = ("extractor2d", "extractor3d", "matcher", "solver")
+REQUIRED_STAGES = tuple(kind for kind, spec in STAGES.items() if spec.required)
 # what a solver may read to run alone on a stored upstream: no pixels, no points (they are not stored)
 RESOLVABLE = frozenset({KEYPOINTS2D, KEYPOINTS3D, MATCHES, FRUSTUM_SCORES, GROUND_TRUTH})
 
@@ -295,14 +295,8 @@ def _describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}{loc}" if str(exc) else f"{type(exc).__name__}{loc}"
 
 
-# Which stage kind normally provides each value, for error messages.
-_PROVIDER = {
-    KEYPOINTS2D: "extractor2d",
-    KEYPOINTS3D: "extractor3d",
-    FEATURES2D: "encoder2d",
-    FEATURES3D: "encoder3d",
-    **EXTRA_VALUES,
-}
+# Which stage kind first provides each value, for error messages (features2d: the encoder2d, not the exchanger).
+_PROVIDER = {value: kind for kind, base in reversed(STAGE_BASES.items()) for value in base.provides} | EXTRA_VALUES
 
 
 def _check_compatibility(stages: Mapping[str, Component]) -> None:

@@ -9,11 +9,12 @@ finished before the failure.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from .components import STAGES
 from .types import Features, Keypoints2D, Keypoints3D, Matches, PoseEstimate
 
 
@@ -26,6 +27,28 @@ class StageRecord:
     component: str
     output: Any
     seconds: float | None
+
+
+@dataclass(frozen=True)
+class StageInputs:
+    """What the stages before one have produced so far: the values a stage of any kind may be handed."""
+
+    kp2d: Keypoints2D | None = None
+    kp3d: Keypoints3D | None = None
+    features: Features = field(default_factory=lambda: Features(None, None))
+    matches: Matches | None = None
+
+    def after(self, record: StageRecord) -> StageInputs:
+        """These inputs with a finished stage's output put where its kind's `StageKind.output` says."""
+        name, _, side = STAGES[record.kind].output.partition(".")
+        if not name:  # the solver's: nothing reads it
+            return self
+        out = replace(self.features, **{side: record.output}) if side else record.output
+        return replace(self, **{name: out})
+
+    def arguments(self, kind: str, features: Features) -> tuple[Any, ...]:
+        """What a stage of `kind` is called with after the frame (`features`: the sides it declares)."""
+        return tuple(features if name == "features" else getattr(self, name) for name in STAGES[kind].inputs)
 
 
 @dataclass(frozen=True)
@@ -75,28 +98,31 @@ class FrameOutcome:
         estimate = records[-1].output
         return cls(estimate, timings, "" if estimate.ok else estimate.message, "", records)
 
-    def output(self, kind: str) -> Any | None:
-        """The checked output of the stage of `kind`, or None when it did not finish."""
-        return next((r.output for r in self.records if r.kind == kind), None)
+    @property
+    def produced(self) -> StageInputs:
+        """What the finished stages produced, each output where the stages after it read it (`StageInputs.after`):
+        the descriptors as the exchanger left them, a side None where no encoder ran. A stage sees only the sides it
+        declares (`i2pbench.calling.declared_view`)."""
+        produced = StageInputs()
+        for record in self.records:
+            produced = produced.after(record)
+        return produced
 
     @property
     def kp2d(self) -> Keypoints2D | None:
-        return self.output("extractor2d")
+        return self.produced.kp2d
 
     @property
     def kp3d(self) -> Keypoints3D | None:
-        return self.output("extractor3d")
+        return self.produced.kp3d
 
     @property
     def features(self) -> Features:
-        """The descriptors the encoders produced, as the exchanger left them; a side is None where no encoder ran
-        (or finished). A matcher sees only the sides it declares (`i2pbench.calling.declared_view`)."""
-        exchanged = self.output("exchanger")
-        return exchanged if exchanged is not None else Features(self.output("encoder2d"), self.output("encoder3d"))
+        return self.produced.features
 
     @property
     def matches(self) -> Matches | None:
-        return self.output("matcher")
+        return self.produced.matches
 
     @property
     def upstream(self) -> Upstream | None:

@@ -7,23 +7,21 @@ import argparse
 import math
 from typing import Any
 
+from ..components import STAGES
+
 CONF_HELP = "component config override (VALUE is YAML)"
 DEVICE_HELP = "where learned stages run: auto (cuda if available), cpu, cuda, cuda:N, mps"
-STAGE_OPTIONS = {
-    "extractor2d": ("--extractor", "--extractor2d"),
-    "extractor3d": ("--extractor3d",),
-    "encoder2d": ("--encoder2d",),
-    "encoder3d": ("--encoder3d",),
-    "exchanger": ("--exchanger",),
-    "matcher": ("--matcher",),
-    "solver": ("--solver",),
-}
 
 
 def add_stage_options(p: argparse.ArgumentParser, help: str, many: bool = True) -> None:
     """One option per stage kind (`--matcher`, ...); `many`: comma-separated names, a list each."""
-    for kind, flags in STAGE_OPTIONS.items():
-        p.add_argument(*flags, dest=kind, type=split_list if many else None, help=help.format(kind=kind))
+    for kind, spec in STAGES.items():
+        p.add_argument(*spec.options, dest=kind, type=split_list if many else None, help=help.format(kind=kind))
+
+
+def stage_choices(args: argparse.Namespace) -> dict[str, Any]:
+    """The stage options given, by kind."""
+    return {kind: getattr(args, kind) for kind in STAGES if getattr(args, kind)}
 
 
 def add_conf_option(p: argparse.ArgumentParser) -> None:
@@ -161,7 +159,7 @@ def chosen_combinations(registry, args: argparse.Namespace):
     from ..components import overlay
     from ..grid import base_combinations, expand, parse_conf_overrides
 
-    choices = {kind: getattr(args, kind) for kind in STAGE_OPTIONS if getattr(args, kind)}
+    choices = stage_choices(args)
     bases = base_combinations(registry, args.preset, stages_named=bool(choices or args.grid))
     confs = parse_conf_overrides(args.conf)
     if args.grid:

@@ -11,7 +11,6 @@ from typing import Any
 
 from .options import (
     DEVICE_HELP,
-    STAGE_OPTIONS,
     add_conf_option,
     add_data_options,
     add_stage_options,
@@ -21,6 +20,7 @@ from .options import (
     positive_int,
     severity_list,
     split_list,
+    stage_choices,
 )
 
 
@@ -36,6 +36,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--device", default="auto", help=DEVICE_HELP)
     p.add_argument("--seed", type=int, default=0, help="protocol seed for the random transforms")
+    p.add_argument("--protocol", default="edgeregnet", metavar="NAME", help="the protocol card to run under "
+                   "(docs/protocol.md): refused when its inputs are ones i2pbench cannot give")  # fmt: skip
     p.add_argument("--corruption", type=split_list, metavar="NAME[:SEVERITY],...", help="run under corruptions "
                    "(docs/robustness.md), each a set of rows: NAME at every severity, NAME:S, all, clean")  # fmt: skip
     p.add_argument("--severities", type=severity_list, metavar="S,...", help="severities for a corruption named "
@@ -71,9 +73,9 @@ def run(args: argparse.Namespace) -> int:
     from ..devices import resolve_device_name
     from ..errors import DataError
     from ..plugins import default_registry
-    from ..protocol import Protocol
     from ..runs.environment import fix_threads
     from ..runs.invocation import Invocation
+    from ..scoring.cards import for_run
     from .run_notes import failure_reasons, latency_reused
 
     if args.isolate:  # Pipeline.build reads it; worker processes receive pipelines built here
@@ -87,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
     frame_ids = _frame_ids(dataset, args)
     if not frame_ids:
         raise DataError(f"dataset {dataset.name!r} split {dataset.split!r} has no frames to run")
-    protocols = _protocols(registry, Protocol(seed=args.seed), args, dataset, frame_ids)
+    base = for_run(args.protocol, args.seed, dataset.name, registry)
+    protocols = _protocols(registry, base, args, dataset, frame_ids)
     name = f"{dataset.name}-{dataset.split}{getattr(dataset, 'board_suffix', '')}"  # a fold's board is its own
     store = _open_store(Path(args.runs_dir) / name)
     invocation = Invocation(store.root, _meta(args, threads, protocols, dataset, frame_ids, combinations))
@@ -113,20 +116,22 @@ def run(args: argparse.Namespace) -> int:
 def board_name(store_name: str, args: argparse.Namespace) -> str:
     """The default board's name: the store's (<dataset>-<split>) and what was run, so a run's board never replaces
     another's (issue 31: `--preset paper-table-1` replaced the default board). The default pipeline keeps the bare
-    name; a preset, a grid file, stage choices, --conf, --weights, corruptions and a seed other than 0 each add a
-    part, e.g. synthetic-test-paper-table-1, kitti-all-classic, kitti-all-canny-depth-oracle-epnp-ransac."""
+    name; a preset, a grid file, stage choices, --conf, --weights, corruptions, a seed other than 0 and a --protocol
+    other than the default each add a part, e.g. synthetic-test-paper-table-1, kitti-all-classic,
+    kitti-all-canny-depth-oracle-epnp-ransac."""
     import hashlib
     import re
 
     parts = [p.replace(",", "+") for p in [args.preset or ""] if p and p != "default"]
     parts += [Path(args.grid).stem] if args.grid else []
-    parts += ["+".join(getattr(args, kind)) for kind in STAGE_OPTIONS if getattr(args, kind)]
+    parts += ["+".join(names) for names in stage_choices(args).values()]
     if args.conf:
         parts.append("conf-" + hashlib.sha256("\n".join(sorted(args.conf)).encode()).hexdigest()[:6])
     parts += [f"weights-{Path(args.weights).stem}"] if args.weights != "auto" else []
     parts += ["robustness"] if args.robustness else ["+".join(args.corruption)] if args.corruption else []
     parts += ["s" + "+".join(map(str, args.severities))] if args.severities else []
     parts += [f"seed{args.seed}"] if args.seed else []
+    parts += [args.protocol] if getattr(args, "protocol", "edgeregnet") != "edgeregnet" else []
     name = re.sub(r"[^A-Za-z0-9._+=-]", "_", "-".join([store_name, *parts]))
     if len(name) > 120:  # a file name has room for 255 bytes; keep it readable and still unique
         name = f"{name[:110]}-{hashlib.sha256(name.encode()).hexdigest()[:8]}"

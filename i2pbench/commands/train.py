@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .options import (
-    STAGE_OPTIONS,
     add_conf_option,
     add_split_options,
     add_stage_options,
@@ -19,6 +18,7 @@ from .options import (
     positive_float,
     positive_int,
     split_conf,
+    stage_choices,
     yaml_setting,
 )
 
@@ -204,7 +204,7 @@ def check_out(out: Path, force: bool) -> None:
 def _combination(registry, args: argparse.Namespace):
     from ..grid import base_combinations, expand, parse_conf_overrides
 
-    choices = {kind: [getattr(args, kind)] for kind in STAGE_OPTIONS if getattr(args, kind)}
+    choices = {kind: [name] for kind, name in stage_choices(args).items()}
     bases = base_combinations(registry, args.preset, stages_named=bool(choices))[:1]
     return expand(bases, choices, parse_conf_overrides(args.conf), registry)[0]
 
