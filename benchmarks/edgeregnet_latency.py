@@ -18,10 +18,10 @@ from collections.abc import Callable
 import numpy as np
 import torch
 from i2pbench_edgeregnet import configs
-from i2pbench_edgeregnet.pointnet2 import farthest_point_sampling
 
 from i2pbench.api import Features, Frame, Keypoints2D, Keypoints3D
 from i2pbench.geometry import in_image, project
+from i2pbench.layers.pointnet2 import farthest_point_sampling
 from i2pbench.plugins import build_registry
 
 W, H, N_POINTS = 1241, 376, 120_000

@@ -23,6 +23,7 @@ if TYPE_CHECKING:
         MATCHES,
         POINTS,
         Component,
+        ConfigError,
         Encoder2D,
         Encoder3D,
         Exchanger,
@@ -31,14 +32,17 @@ if TYPE_CHECKING:
         Matcher,
         PoseSolver,
     )
+    from .correspondence import ground_truth_matches
     from .corruptions import Corruption
     from .data.base import Dataset
-    from .errors import DataError, StageError
-    from .hookspecs import hookimpl
-    from .learned import LearnedComponent
+    from .errors import DataError, PluginError, StageError, WeightsError
+    from .geometry import cell_half_diagonal, in_image, make_transform, project, rot_z, transform_points
+    from .hookspecs import Register, hookimpl
+    from .learned import LearnedComponent, width_mismatch
     from .methods import Method, MethodPreset, Row, Size
     from .metric_registry import Metric, Scored
     from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
+    from .weights import ImportedWeights
 
 __all__ = [
     "FEATURES2D",
@@ -51,6 +55,7 @@ __all__ = [
     "MATCHES",
     "POINTS",
     "Component",
+    "ConfigError",
     "Corruption",
     "DataError",
     "Dataset",
@@ -61,6 +66,7 @@ __all__ = [
     "Extractor3D",
     "Features",
     "Frame",
+    "ImportedWeights",
     "Keypoints2D",
     "Keypoints3D",
     "LearnedComponent",
@@ -69,14 +75,25 @@ __all__ = [
     "Method",
     "MethodPreset",
     "Metric",
+    "PluginError",
     "PoseEstimate",
     "PoseSolver",
+    "Register",
     "Row",
     "Scored",
     "SensorFrame",
     "Size",
     "StageError",
+    "WeightsError",
+    "cell_half_diagonal",
+    "ground_truth_matches",
     "hookimpl",
+    "in_image",
+    "make_transform",
+    "project",
+    "rot_z",
+    "transform_points",
+    "width_mismatch",
 ]
 
 
@@ -93,6 +110,7 @@ _MODULES = {
         "MATCHES",
         "POINTS",
         "Component",
+        "ConfigError",
         "Encoder2D",
         "Encoder3D",
         "Exchanger",
@@ -101,14 +119,17 @@ _MODULES = {
         "Matcher",
         "PoseSolver",
     ),
+    "correspondence": ("ground_truth_matches",),
     "corruptions": ("Corruption",),
     "data.base": ("Dataset",),
-    "errors": ("DataError", "StageError"),
-    "hookspecs": ("hookimpl",),
-    "learned": ("LearnedComponent",),
+    "errors": ("DataError", "PluginError", "StageError", "WeightsError"),
+    "geometry": ("cell_half_diagonal", "in_image", "make_transform", "project", "rot_z", "transform_points"),
+    "hookspecs": ("Register", "hookimpl"),
+    "learned": ("LearnedComponent", "width_mismatch"),
     "methods": ("Method", "MethodPreset", "Row", "Size"),
     "metric_registry": ("Metric", "Scored"),
     "types": ("Features", "Frame", "Keypoints2D", "Keypoints3D", "Matches", "PoseEstimate", "SensorFrame"),
+    "weights": ("ImportedWeights",),
 }
 _HOME = {name: module for module, names in _MODULES.items() for name in names}
 

@@ -3,7 +3,7 @@ importing the stage bases (to list plugins, or to run the classic stages) must n
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
 import torch
@@ -29,3 +29,14 @@ class LearnedComponent(Component, torch.nn.Module):
         """The fixed-shape submodules worth `torch.compile` (`train --compile`): none by default, since a stage's
         data-dependent loops (point sampling, say) would be unrolled or recompiled per input, not sped up."""
         return []
+
+
+def width_mismatch(component: Component, upstream: Mapping[str, Component], keys: Sequence[str]) -> str | None:
+    """why one of component's width keys (descriptor_dim, global_dim) disagrees with an upstream stage's, or None."""
+    for kind in ("encoder2d", "encoder3d", "exchanger"):
+        other = upstream.get(kind)
+        theirs = getattr(other, "conf", {}) if other is not None else {}
+        for key in keys:
+            if key in theirs and theirs[key] != component.conf[key]:
+                return f"{component.label} has {key} {component.conf[key]} but {other.label} has {key} {theirs[key]}"
+    return None

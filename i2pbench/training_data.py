@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from . import layers
 from .augment import augmentations
 from .batching import LEARNED_KINDS, collate, length_mask, prepare_stage
 from .components import Component
@@ -37,7 +38,9 @@ EXTRACTOR_KINDS = ("extractor2d", "extractor3d")
 
 
 def signature(stage: Component) -> dict[str, Any]:
-    return {"name": stage.name, "conf": json.loads(json.dumps(stage.conf, default=str))}
+    described = {"name": stage.name, "conf": json.loads(json.dumps(stage.conf, default=str))}
+    used = layers.revisions(stage)  # a bumped shared layer (the grouping, say) refills the cache
+    return {**described, "layers": used} if used else described
 
 
 def digest(value: Any) -> str:

@@ -14,7 +14,6 @@ import torch.nn.functional as F
 from i2pbench_classic.extract2d import GridExtractor2D
 from i2pbench_corri2p import configs
 from i2pbench_corri2p.exchange import CorrI2PExchanger
-from i2pbench_corri2p.frame_norm import FrameNorm
 from i2pbench_corri2p.image import CorrI2PImageEncoder
 from i2pbench_corri2p.loss import anchor_pairs, balanced_bce, circle_loss, overlap_labels
 from i2pbench_corri2p.overlap import CorrI2PMatcher, candidates, mutual_nearest, nearest_to_each_column
@@ -25,6 +24,7 @@ from test_training_batches import assert_mean_of_frames
 from i2pbench.api import Features, Frame, Keypoints2D, Keypoints3D
 from i2pbench.batching import BatchForward, prepare_stage
 from i2pbench.grid import base_combinations, expand
+from i2pbench.layers.frame_norm import FrameNorm
 from i2pbench.plugins import build_registry
 from i2pbench.runs.runner import prepare
 from i2pbench.testing import check_component, registered_components

@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 import torch
 from i2pbench_edgeregnet.attention import normalize_pixels
-from i2pbench_edgeregnet.pointnet2 import (
+
+from i2pbench.geometry import make_transform, rot_z
+from i2pbench.layers.pointnet2 import (
     ball_query,
     ball_query_torch,
     farthest_point_sampling,
@@ -14,9 +16,7 @@ from i2pbench_edgeregnet.pointnet2 import (
     three_nn,
     three_nn_torch,
 )
-from i2pbench_edgeregnet.superpoint import sample_descriptors
-
-from i2pbench.geometry import make_transform, rot_z
+from i2pbench.layers.sampling import sample_descriptors
 
 
 def coordinate_map(hc: int, wc: int) -> torch.Tensor:

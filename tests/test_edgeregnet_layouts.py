@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 import torch
 from i2pbench_edgeregnet import configs
-from i2pbench_edgeregnet.pointnet2 import PointNet2Encoder, SharedMLP
+from i2pbench_edgeregnet.pointnet2 import PointNet2Encoder
 from i2pbench_edgeregnet.superpoint import SuperPointEncoder
 
 from i2pbench.data.images import read_image
+from i2pbench.layers.pointnet2 import SharedMLP
 
 SHIPPED = Path(i2pbench_edgeregnet.__file__).parent / "weights" / "edgeregnet-cpu-synthetic.pt"
 

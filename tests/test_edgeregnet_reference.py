@@ -15,11 +15,11 @@ from i2pbench_edgeregnet import official_import
 from i2pbench_edgeregnet.method import official_stages
 from i2pbench_edgeregnet.official_matching import official_loss, project
 from i2pbench_edgeregnet.official_pointnet2 import ball_query, normalize
-from i2pbench_edgeregnet.pointnet2 import ball_query as fast_ball_query
-from i2pbench_edgeregnet.pointnet2 import farthest_point_sampling
 from i2pbench_edgeregnet.reference import recipe_state, reference_forward, reference_frame
 
 from i2pbench.cli import main
+from i2pbench.layers.pointnet2 import ball_query as fast_ball_query
+from i2pbench.layers.pointnet2 import farthest_point_sampling
 from i2pbench.weights import load_checkpoint
 
 FOLDER = Path(

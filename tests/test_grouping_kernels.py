@@ -4,11 +4,12 @@ EdgeRegNet's 3D descriptors do not change when they replace it (speed: benchmark
 import numpy as np
 import pytest
 import torch
-from i2pbench_edgeregnet import pointnet2
 from i2pbench_edgeregnet.configs import SMALL
-from i2pbench_edgeregnet.pointnet2 import PointNet2Encoder, gather, group, normalize_points
+from i2pbench_edgeregnet.pointnet2 import PointNet2Encoder
 
 from i2pbench.data.kitti import read_points
+from i2pbench.layers import pointnet2
+from i2pbench.layers.pointnet2 import gather, group, normalize_points
 
 RELATIVE_ROUNDING = 1e-5  # float32 sums in two orders differ by ~1e-7 relative; 100x that is still a tie
 

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from .. import layers
 from ..components import Component
 from ..data.base import Dataset
 from ..pipeline import Combination, Pipeline, stage_classes
@@ -43,8 +44,9 @@ class Job:
         return self.combination.display
 
     def stages(self) -> dict[str, dict[str, Any]]:
-        """Each stage's name, full config (defaults merged) and revision: a changed default or a bumped revision
-        changes the cache key; revision 0 is left out, so keys made before revisions existed still match."""
+        """Each stage's name, full config (defaults merged), revision and shared layers' revisions: a changed default
+        or a bumped revision changes the cache key; revisions at 0 are left out, so keys made before revisions
+        existed still match."""
         return {kind: _described(c) for kind, c in self.pipeline.stages.items()}
 
     def to(self, device: str) -> Job:
@@ -55,8 +57,11 @@ class Job:
 
 
 def _described(component: Component) -> dict[str, Any]:
-    described = {"name": component.name, "conf": component.conf}
-    return {**described, "revision": component.revision} if component.revision else described
+    described: dict[str, Any] = {"name": component.name, "conf": component.conf}
+    if component.revision:
+        described["revision"] = component.revision
+    used = layers.revisions(component)  # shared layers its code imports, at nonzero revisions (i2pbench.layers)
+    return {**described, "layers": used} if used else described
 
 
 def prepare(

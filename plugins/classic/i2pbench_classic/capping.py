@@ -12,7 +12,7 @@ import hashlib
 
 import numpy as np
 
-from i2pbench.types import Frame
+from i2pbench.api import Frame
 
 # numpy's Generator.choice(n, k, replace=False) draws by Floyd's algorithm unless n > 10,000 and k > n // 50 (a
 # shuffle of the tail of arange(n)); on Floyd's branch `shuffle=False` keeps the same set and skips a shuffle of the k

@@ -9,9 +9,20 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from i2pbench.api import GROUND_TRUTH, KEYPOINTS2D, KEYPOINTS3D, MATCHES, Matcher, StageError
-from i2pbench.correspondence import ground_truth_matches
-from i2pbench.types import Features, Frame, Keypoints2D, Keypoints3D, Matches
+from i2pbench.api import (
+    GROUND_TRUTH,
+    KEYPOINTS2D,
+    KEYPOINTS3D,
+    MATCHES,
+    Features,
+    Frame,
+    Keypoints2D,
+    Keypoints3D,
+    Matcher,
+    Matches,
+    StageError,
+    ground_truth_matches,
+)
 
 if TYPE_CHECKING:
     import torch

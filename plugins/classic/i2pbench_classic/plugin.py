@@ -7,8 +7,7 @@ matcher's), and a run imports only the modules of the stages it uses.
 
 from __future__ import annotations
 
-from i2pbench.api import hookimpl
-from i2pbench.hookspecs import Register
+from i2pbench.api import Register, hookimpl
 
 
 @hookimpl

@@ -12,8 +12,7 @@ import cv2
 import numpy as np
 import poselib
 
-from i2pbench.api import Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, PoseSolver
-from i2pbench.geometry import make_transform
+from i2pbench.api import Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, PoseSolver, make_transform
 
 MIN_MATCHES = 4
 

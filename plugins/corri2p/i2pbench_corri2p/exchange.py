@@ -16,37 +16,36 @@ What differs, and why:
   decoder at strides 32 and 16 as in the paper: the fused features are not convolved again;
 - the 3D nodes are farthest-point samples of the 3D keypoints (the paper samples the whole cloud), each keypoint
   belonging to its nearest node; the 2D cells pool the keypoints they contain;
-- the update MLPs are normalised over each frame's keypoints (frame_norm.py), as the paper's BatchNorm.
+- the update MLPs are normalised over each frame's keypoints (layers/frame_norm.py), as the paper's BatchNorm.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from i2pbench_edgeregnet.attention import key_mask
-from i2pbench_edgeregnet.pointnet2 import farthest_point_sampling
 from torch import nn
 
-from i2pbench.api import Component, Exchanger, Features, Frame, Keypoints2D, Keypoints3D, LearnedComponent, StageError
+from i2pbench.api import (
+    Component,
+    Exchanger,
+    Features,
+    Frame,
+    Keypoints2D,
+    Keypoints3D,
+    LearnedComponent,
+    StageError,
+    width_mismatch,
+)
 from i2pbench.batching import exchange_one_frame
-
-from .frame_norm import FrameMLP
-
-
-def width_mismatch(component: Component, upstream: Mapping[str, Component], keys: Sequence[str]) -> str | None:
-    """why one of component's width keys (descriptor_dim, global_dim) disagrees with an upstream stage's, or None."""
-    for kind in ("encoder2d", "encoder3d", "exchanger"):
-        other = upstream.get(kind)
-        theirs = getattr(other, "conf", {}) if other is not None else {}
-        for key in keys:
-            if key in theirs and theirs[key] != component.conf[key]:
-                return f"{component.label} has {key} {component.conf[key]} but {other.label} has {key} {theirs[key]}"
-    return None
+from i2pbench.layers.attention import key_mask
+from i2pbench.layers.frame_norm import FrameMLP
+from i2pbench.layers.nodes import expand, masked_mean, pool_nodes
+from i2pbench.layers.pointnet2 import farthest_point_sampling
 
 
 def point_nodes(xyz: np.ndarray, count: int) -> np.ndarray:
@@ -65,22 +64,6 @@ def pixel_cells(uv: np.ndarray, size: tuple[int, int], cell_px: float) -> tuple[
     cols, rows = math.ceil(width / cell_px), math.ceil(height / cell_px)
     cell = np.clip(np.floor(np.asarray(uv, np.float64).reshape(-1, 2) / cell_px), 0, [cols - 1, rows - 1])
     return (cell[:, 1] * cols + cell[:, 0]).astype(np.int64), cols * rows
-
-
-def pool_nodes(local: torch.Tensor, node: torch.Tensor, mask: torch.Tensor, count: int) -> tuple[torch.Tensor, ...]:
-    """max of local [B x M x C] over each node's members (node [B x M] in [0, count), padding masked out)
-    -> node features [B x count x C], and which nodes have a member [B x count]."""
-    index = torch.where(mask, node, torch.full_like(node, count))  # padding goes to a dropped extra node
-    feats = local.new_zeros(local.shape[0], count + 1, local.shape[2])
-    feats = feats.scatter_reduce(1, index[..., None].expand(-1, -1, local.shape[2]), local, "amax", include_self=False)
-    members = torch.zeros(local.shape[0], count + 1, device=local.device).scatter_add_(1, index, mask.float())
-    return feats[:, :count], members[:, :count] > 0
-
-
-def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """mean of x [B x M x C] over the rows mask [B x M] keeps -> [B x C] (0 for a frame with none)."""
-    weights = mask.to(x.dtype)[..., None]
-    return (x * weights).sum(1) / weights.sum(1).clamp(min=1)
 
 
 class NodeAttention(nn.Module):
@@ -179,8 +162,3 @@ class CorrI2PExchanger(LearnedComponent, Exchanger):
         d2 = d2 + self.fuse2d(torch.cat([l2, m2, expand(g2, l2), expand(g3, l2)], -1), mask2d)
         d3 = d3 + self.fuse3d(torch.cat([l3, m3, expand(g3, l3), expand(g2, l3)], -1), mask3d)
         return d2, d3
-
-
-def expand(glob: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
-    """a per-frame vector [B x G] repeated for each keypoint of like [B x M x C] -> [B x M x G]."""
-    return glob[:, None].expand(-1, like.shape[1], -1)

@@ -12,7 +12,7 @@ Choices the paper leaves open or that differ from it, with reasons:
 - upsampling goes to the skip connection's exact size, so any image size works (the paper's fixed 160 x 512 crop
   divides by 32); the stride-4 skip is the stride-4 map with the stem's stride-2 map resized onto it, as the paper's;
 - keypoints are read off the stride-4 map with SuperPoint's mapping (cell centres at 4 j + 1.5 of the resized image,
-  `i2pbench_edgeregnet.superpoint.sample_descriptors`), from pixels of the original image.
+  `i2pbench.layers.sampling.sample_descriptors`), from pixels of the original image.
 """
 
 from __future__ import annotations
@@ -23,41 +23,13 @@ import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
-from i2pbench_edgeregnet.superpoint import normalize_images, sample_descriptors
 from torch import nn
 
 from i2pbench.api import Encoder2D, Frame, Keypoints2D, LearnedComponent
+from i2pbench.layers.resnet import BasicBlock, coarse_mask, norm, stage
+from i2pbench.layers.sampling import normalize_images, sample_descriptors
 
 STRIDE = 4  # of the decoded map, on the resized image
-
-
-def norm(channels: int, groups: int) -> nn.GroupNorm:
-    return nn.GroupNorm(min(groups, channels), channels)
-
-
-class BasicBlock(nn.Module):
-    """ResNet's two 3x3 convolutions with an identity (or strided 1x1) shortcut."""
-
-    def __init__(self, cin: int, cout: int, stride: int, groups: int) -> None:
-        super().__init__()
-        self.conv1 = nn.Conv2d(cin, cout, 3, stride, 1, bias=False)
-        self.conv2 = nn.Conv2d(cout, cout, 3, 1, 1, bias=False)
-        self.norm1, self.norm2 = norm(cout, groups), norm(cout, groups)
-        self.shortcut = (
-            nn.Identity()
-            if stride == 1 and cin == cout
-            else nn.Sequential(nn.Conv2d(cin, cout, 1, stride, bias=False), norm(cout, groups))
-        )
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        out = F.relu(self.norm1(self.conv1(x)))
-        return F.relu(self.norm2(self.conv2(out)) + self.shortcut(x))
-
-
-def stage(cin: int, cout: int, blocks: int, stride: int, groups: int) -> nn.Sequential:
-    layers = [BasicBlock(cin, cout, stride, groups)]
-    layers += [BasicBlock(cout, cout, 1, groups) for _ in range(blocks - 1)]
-    return nn.Sequential(*layers)
 
 
 class UpBlock(nn.Module):
@@ -70,17 +42,6 @@ class UpBlock(nn.Module):
     def forward(self, x: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
         x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
         return self.blocks(torch.cat([x, skip], 1))
-
-
-def coarse_mask(size: torch.Tensor, shape: tuple[int, int], stride: int) -> torch.Tensor:
-    """[B x 1 x h x w] float: the cells of a stride-`stride` map that cover each frame's own size [B x 2] (H, W).
-
-    Every stride-2 layer here maps n pixels to ceil(n / 2), so a frame of height H covers ceil(H / stride) rows.
-    """
-    cells = torch.div(size + stride - 1, stride, rounding_mode="floor")
-    rows = torch.arange(shape[0], device=size.device)[None, :, None] < cells[:, :1, None]
-    cols = torch.arange(shape[1], device=size.device)[None, None, :] < cells[:, 1:, None]
-    return (rows & cols)[:, None].float()
 
 
 class CorrI2PImageEncoder(LearnedComponent, Encoder2D):

@@ -26,9 +26,7 @@ import torch
 import torch.nn.functional as F
 from scipy.spatial import cKDTree
 
-from i2pbench.correspondence import ground_truth_matches
-from i2pbench.geometry import in_image, project
-from i2pbench.types import Frame, Keypoints2D, Keypoints3D
+from i2pbench.api import Frame, Keypoints2D, Keypoints3D, ground_truth_matches, in_image, project
 
 MASKED = -1e4  # stands for a masked entry inside a log-sum-exp: exp() is exactly 0 next to any real term, and unlike
 # -inf a row with no real entry gives a finite value (its loss is then softplus(-1e4) = 0, with zero gradient)

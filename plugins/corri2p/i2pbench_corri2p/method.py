@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from i2pbench.methods import Method, MethodPreset, Row, Size
+from i2pbench.api import Method, MethodPreset, Row, Size
 
 from .configs import COMPONENTS, CPU, CPU_PIXELS, CPU_POINTS, EXTRACTORS, PAPER, PAPER_POINTS
 

@@ -16,7 +16,7 @@ What differs, and why:
 - a pair is true when the point projects anywhere in the pixel's grid cell (`Matches.radius_px`: the cell's half
   diagonal, 11.31 px at the CPU size's stride 16, 5.66 px at the paper size's stride 8), the resolution at which
   the paper defines its pairs and overlap; eps_c (3 px) would credit only the cell's centre;
-- the heads are Linear + ReLU layers normalised over each frame's keypoints (frame_norm.py), the paper's 1x1
+- the heads are Linear + ReLU layers normalised over each frame's keypoints (layers/frame_norm.py), the paper's 1x1
   convolutions with BatchNorm with one frame's statistics instead of a batch's.
 """
 
@@ -40,11 +40,11 @@ from i2pbench.api import (
     Matcher,
     Matches,
     StageError,
+    cell_half_diagonal,
+    width_mismatch,
 )
-from i2pbench.geometry import cell_half_diagonal
+from i2pbench.layers.frame_norm import FrameMLP
 
-from .exchange import width_mismatch
-from .frame_norm import FrameMLP
 from .loss import anchor_pairs, balanced_bce, circle_loss, overlap_labels
 
 

@@ -4,9 +4,9 @@ levels of 128 nodes, feature propagation onto the 3D keypoints, plus the cloud's
 Each keypoint's descriptor is [local (D - G) | global (G)]; the global feature is a shared MLP on the second level's
 nodes ([position, features]) max-pooled over them, as the paper's final PointNet.
 
-Built from EdgeRegNet's PointNet++ blocks (`i2pbench_edgeregnet.pointnet2`: farthest point sampling, ball query,
-set abstraction, 3-NN interpolation, the seeded cloud subset and the transform-free grouping cache). What differs
-from the paper, and why:
+The network is `i2pbench.layers.global_pointnet2`, built from the PointNet++ blocks of `i2pbench.layers.pointnet2`
+(farthest point sampling, ball query, set abstraction, 3-NN interpolation, the seeded cloud subset and the
+transform-free grouping cache). What differs from the paper, and why:
 - the paper's point encoder is DeepI2P's (SO-Net style: every point assigned to its nearest first-level node, k-NN
   from second-level nodes to first-level ones, with surface normals as inputs). Here it is PointNet++ set abstraction
   at the same node counts and widths (128 nodes of 64 channels, 128 of 256, a 512-wide global feature), on xyz and
@@ -15,130 +15,18 @@ from the paper, and why:
 - each keypoint's head also reads its offsets from its 3 nearest first-level nodes (in units of their radius), the
   fine geometry the paper's per-point PointNet takes relative to each point's node: interpolated node features and
   the cloud-normalised position alone differ by ~0.003 between points one stride-16 cell apart;
-- GroupNorm in the set abstractions, and a head normalised over the frame's keypoints (frame_norm.py), instead of
+- GroupNorm in the set abstractions, and a head normalised over the frame's keypoints (layers/frame_norm.py), instead of
   BatchNorm, for one-frame steps;
 - `canonical_yaw` (on in the CPU size, off at the paper's) expresses the cloud in its yaw-canonical frame
-  (EdgeRegNet's canonical.py), so the encoder need not learn invariance to the protocol's random yaw from data.
+  (i2pbench/layers/canonical.py), so the encoder need not learn invariance to the protocol's random yaw from data.
 """
 
 from __future__ import annotations
 
-from typing import Any
-
-import numpy as np
-import torch
-import torch.nn.functional as F
-from i2pbench_edgeregnet.pointnet2 import SetAbstraction, frame_seed, gather, group, interpolate, normalize_points
-from i2pbench_edgeregnet.pointnet2 import shared_mlp as conv_mlp
-from torch import nn
-
-from i2pbench.api import Encoder3D, Frame, Keypoints3D, LearnedComponent, StageError
-
-from .frame_norm import FrameMLP
-
-NEAREST_NODES = 3  # first-level nodes each keypoint reads (the 3-NN of the feature propagation)
+from i2pbench.layers.global_pointnet2 import GlobalPointNet2Encoder
 
 
-def linear_mlp(widths: tuple[int, ...]) -> nn.Sequential:
-    """Linear + LayerNorm + ReLU per hidden width (no activation after the last Linear); DeepI2P's fusion uses it,
-    CorrI2P's stages normalise over the frame's keypoints instead (frame_norm.py)."""
-    layers: list[nn.Module] = []
-    for cin, cout in zip(widths[:-2], widths[1:-1], strict=True):
-        layers += [nn.Linear(cin, cout), nn.LayerNorm(cout), nn.ReLU(inplace=True)]
-    return nn.Sequential(*layers, nn.Linear(widths[-2], widths[-1]))
-
-
-class CorrI2PPointEncoder(LearnedComponent, Encoder3D):
+class CorrI2PPointEncoder(GlobalPointNet2Encoder):
     """Per-keypoint [local | global] descriptors from a two-level PointNet++ on the (sub-sampled) cloud."""
 
     name = "corri2p-pointnet2"
-    default_conf: dict[str, Any] = {
-        "descriptor_dim": 640,  # D: local (D - G) + global (G) channels per keypoint
-        "global_dim": 512,  # G: the cloud's global feature (the paper's 512)
-        "num_points": 40960,  # cloud size (seeded random subset by frame id; the paper's 40,960)
-        "sa1": {"npoint": 128, "radius": 0.1, "nsample": 64, "mlp": (32, 32, 64)},  # the paper's first 128 nodes, 64 ch
-        "sa2": {"npoint": 128, "radius": 0.3, "nsample": 16, "mlp": (256, 256)},  # second 128 nodes, 256 ch, k = 16
-        "global_mlp": (256, 512),  # shared MLP on [xyz, SA2 features] before the max (ends at global_dim)
-        "fp_mlp": (256,),  # decoder SA2 -> SA1 nodes, on [interpolated SA2, SA1] features
-        "head_mlp": (256, 256),  # hidden widths on [interpolated, xyz, reflectance, node offsets] at the keypoints
-        "groups": 8,  # GroupNorm groups in the shared MLPs
-        "normalize_descriptors": True,  # L2-normalise the local part
-        "canonical_yaw": False,  # True: the cloud in its yaw-canonical frame (EdgeRegNet's canonical.py; our addition)
-    }
-
-    def __init__(self, conf: dict[str, Any] | None = None) -> None:
-        super().__init__(conf)
-        for sa in ("sa1", "sa2"):  # a partial override of a set-abstraction layer keeps the other defaults
-            self.conf[sa] = {**self.default_conf[sa], **self.conf[sa]}
-        c, g = self.conf, self.conf["groups"]
-        local = c["descriptor_dim"] - c["global_dim"]
-        if local < 1 or c["global_mlp"][-1] != c["global_dim"]:
-            raise ValueError(f"{self.label}: needs descriptor_dim > global_dim and global_mlp ending at global_dim")
-        self.sa1 = SetAbstraction(**c["sa1"], cin=1, groups=g)
-        self.sa2 = SetAbstraction(**c["sa2"], cin=c["sa1"]["mlp"][-1], groups=g)
-        self.global_mlp = conv_mlp(3 + c["sa2"]["mlp"][-1], tuple(c["global_mlp"]), g)
-        self.fp = conv_mlp(c["sa2"]["mlp"][-1] + c["sa1"]["mlp"][-1], tuple(c["fp_mlp"]), g)
-        self.head = FrameMLP((c["fp_mlp"][-1] + 4 + 3 * NEAREST_NODES, *c["head_mlp"], local))
-
-    def cloud(self, frame: Frame) -> np.ndarray:
-        """the frame's finite returns, cut to `num_points` by a subset seeded by the frame id -> [N x 4]."""
-        points = frame.points[np.isfinite(frame.points).all(1)]
-        if len(points) > self.conf["num_points"]:
-            rng = np.random.default_rng(frame_seed(frame))
-            points = points[rng.choice(len(points), self.conf["num_points"], replace=False)]
-        return np.asarray(points, np.float32)
-
-    def prepare(
-        self, frame: Frame, kp3d: Keypoints3D, device: torch.device | str = "cpu", cache: dict | None = None
-    ) -> dict[str, torch.Tensor]:
-        """one frame's inputs: normalised cloud and keypoints (+ reflectance) and their grouping, which `cache` keeps
-        across calls (it depends only on distances between points, which the protocol's transform keeps)."""
-        if not np.isfinite(kp3d.xyz).all() or not np.isfinite(kp3d.reflectance).all():
-            raise StageError(self.label, "3D keypoints with non-finite coordinates or reflectance (corrupt scan?)")
-        cloud = torch.from_numpy(self.cloud(frame)).to(device)
-        if len(cloud) == 0:
-            raise StageError(self.label, "a scan with no finite point")
-        keys = torch.from_numpy(np.c_[kp3d.xyz, kp3d.reflectance].astype(np.float32)).to(device)
-        both = normalize_points(torch.cat([cloud[:, :3], keys[:, :3]]), cloud[:, :3], self.conf["canonical_yaw"])
-        inputs = {
-            "xyz": both[: len(cloud)],
-            "reflectance": cloud[:, 3:],
-            "key_xyz": both[len(cloud) :],
-            "key_reflectance": keys[:, 3:],
-            "num_keys": torch.tensor(len(keys), device=device),
-        }
-        grouping = cache.get("grouping") if cache is not None else None
-        if grouping is None or len(grouping["edge"]) != len(keys):
-            grouping = {k: v[0] for k, v in group(inputs["xyz"][None], inputs["key_xyz"][None], self.conf).items()}
-            if cache is not None:
-                cache["grouping"] = {k: v.cpu() for k, v in grouping.items()}
-        return {**inputs, **{k: v.to(device) for k, v in grouping.items()}}
-
-    def __call__(self, frame: Frame, kp3d: Keypoints3D) -> torch.Tensor:
-        if len(kp3d) == 0:
-            return torch.zeros(0, self.conf["descriptor_dim"], device=next(self.parameters()).device)
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp3d, device).items()}
-        return nn.Module.__call__(self, inputs)[0].float()
-
-    def forward(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
-        """a batch of `prepare`d frames (xyz [B x N x 3], reflectance [B x N x 1], key_xyz [B x M x 3],
-        key_reflectance [B x M x 1] and the grouping indices) -> keypoint descriptors [B x M x D], [local | global].
-
-        Rows past a frame's own counts are padding, never gathered by its indices; the nodes are the same number in
-        every frame, so the global max sees no padding."""
-        g = inputs
-        xyz1, f1 = self.sa1(g["xyz"], g["reflectance"], g["fps1"], g["ball1"])
-        xyz2, f2 = self.sa2(xyz1, f1, g["fps2"], g["ball2"])
-        nodes = torch.cat([xyz2, f2], -1).transpose(1, 2)[..., None]  # [B x C x S2 x 1]
-        glob = self.global_mlp(nodes)[..., 0].amax(-1)  # [B x G]
-        up = torch.cat([interpolate(xyz1, xyz2, f2, g["up"]), f1], -1)
-        f1 = self.fp(up.transpose(1, 2)[..., None])[..., 0].transpose(1, 2)
-        kxyz, nearest = g["key_xyz"], g["edge"]
-        offsets = (kxyz[:, :, None] - gather(xyz1, nearest)) / self.conf["sa1"]["radius"]  # [B x M x 3 x 3]
-        local = torch.cat([interpolate(kxyz, xyz1, f1, nearest), kxyz, g["key_reflectance"], offsets.flatten(2)], -1)
-        real = torch.arange(kxyz.shape[1], device=kxyz.device)[None] < g["num_keys"].reshape(-1, 1)  # [B x M]
-        local = self.head(local, real)
-        if self.conf["normalize_descriptors"]:
-            local = F.normalize(local, dim=-1)
-        return torch.cat([local, glob[:, None].expand(-1, local.shape[1], -1)], -1)

@@ -25,8 +25,6 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-from i2pbench_corri2p.exchange import width_mismatch
-from i2pbench_corri2p.points import linear_mlp
 from torch import nn
 
 from i2pbench.api import (
@@ -44,8 +42,10 @@ from i2pbench.api import (
     Matcher,
     Matches,
     StageError,
+    cell_half_diagonal,
+    width_mismatch,
 )
-from i2pbench.geometry import cell_half_diagonal
+from i2pbench.layers.mlp import linear_mlp
 
 from .labels import cell_centres, cell_of_pixels, frustum_labels, grid_labels
 from .positions import feature_width, fourier_features, normalised_pixels

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
-from i2pbench.types import PoseEstimate
+from i2pbench.api import PoseEstimate
 
 from .inverse_projection import (
     LOSSES,

@@ -28,13 +28,23 @@ from typing import Any
 
 import numpy as np
 import torch
-from i2pbench_corri2p.exchange import expand, masked_mean, pool_nodes, width_mismatch
-from i2pbench_corri2p.points import linear_mlp
-from i2pbench_edgeregnet.pointnet2 import farthest_point_sampling, gather
 from scipy.spatial import cKDTree
 
-from i2pbench.api import Component, Exchanger, Features, Frame, Keypoints2D, Keypoints3D, LearnedComponent, StageError
+from i2pbench.api import (
+    Component,
+    Exchanger,
+    Features,
+    Frame,
+    Keypoints2D,
+    Keypoints3D,
+    LearnedComponent,
+    StageError,
+    width_mismatch,
+)
 from i2pbench.batching import exchange_one_frame
+from i2pbench.layers.mlp import linear_mlp
+from i2pbench.layers.nodes import expand, masked_mean, pool_nodes
+from i2pbench.layers.pointnet2 import farthest_point_sampling, gather
 
 from .positions import feature_width, fourier_features, normalised_pixels
 

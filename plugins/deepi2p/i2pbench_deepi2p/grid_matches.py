@@ -6,8 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from i2pbench.geometry import cell_half_diagonal
-from i2pbench.types import Keypoints2D, Matches
+from i2pbench.api import Keypoints2D, Matches, cell_half_diagonal
 
 from .labels import cell_centres, grid_shape
 

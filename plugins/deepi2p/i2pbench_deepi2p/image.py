@@ -7,11 +7,11 @@ bilinearly at the keypoint, projected to D - G channels (none when their widths 
 global is the average-pooled stride-32 map. The paper's ResNet-34 widths are the defaults (256 channels at stride 16,
 512 at stride 32 and global).
 
-Built from CorrI2P's residual blocks (`i2pbench_corri2p.image`) and EdgeRegNet's sampling and per-image
-normalisation. What differs from the paper, and why: no ImageNet initialisation (the paper's ResNet-34 is
-pretrained); GroupNorm instead of BatchNorm (one-frame training steps); no crop, the whole image is resized by
-`image_scale` (the paper crops KITTI's top 50 rows and takes 160 x 512 of the half-size image), so any image size
-works and no part of the frame goes unseen.
+Built from CorrI2P's residual blocks (`i2pbench.layers.resnet`) and the SuperPoint-style sampling and per-image
+normalisation (`i2pbench.layers.sampling`). What differs from the paper, and why: no ImageNet initialisation (the
+paper's ResNet-34 is pretrained); GroupNorm instead of BatchNorm (one-frame training steps); no crop, the whole
+image is resized by `image_scale` (the paper crops KITTI's top 50 rows and takes 160 x 512 of the half-size image),
+so any image size works and no part of the frame goes unseen.
 """
 
 from __future__ import annotations
@@ -22,11 +22,11 @@ import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
-from i2pbench_corri2p.image import coarse_mask, norm, stage
-from i2pbench_edgeregnet.superpoint import normalize_images, sample_descriptors
 from torch import nn
 
 from i2pbench.api import Encoder2D, Frame, Keypoints2D, LearnedComponent
+from i2pbench.layers.resnet import coarse_mask, norm, stage
+from i2pbench.layers.sampling import normalize_images, sample_descriptors
 
 
 def resized(frame: Frame, kp2d: Keypoints2D, scale: float) -> tuple[np.ndarray, np.ndarray]:

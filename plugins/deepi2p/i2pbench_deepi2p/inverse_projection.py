@@ -25,7 +25,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from i2pbench.geometry import transform_points
+from i2pbench.api import transform_points
 
 Pose = Callable[[np.ndarray], np.ndarray]  # params -> [4 x 4] camera <- moved LiDAR
 Faces = tuple[np.ndarray, np.ndarray]  # ([4 x 3] unit inward normals, [4] pixel scales c_k): left, right, top, bottom

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from i2pbench.geometry import project
+from i2pbench.api import project
 
 
 def inside_image(uv: np.ndarray, size: tuple[int, int], margin_px: float = 0.0) -> np.ndarray:

@@ -12,7 +12,7 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from i2pbench.methods import Method, MethodPreset, Row, Size
+from i2pbench.api import Method, MethodPreset, Row, Size
 
 from .configs import COMPONENTS, CPU, CPU_POINTS, EXTRACTORS, PAPER, PAPER_POINTS, SOLVER
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from i2pbench.geometry import make_transform, rot_z
+from i2pbench.api import make_transform, rot_z
 
 
 def planar_pose(params: np.ndarray, T_base: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ the same inputs for both directions (as SuperGlue and LightGlue). An update is x
 2D and 3D get their own weights by default (the modalities differ); `share_weights` ties them as SuperGlue does.
 Positions: pixels are centred and divided by half the image's longer side; 3D edge points are centred on their
 centroid and divided by their largest distance to it (translation-invariant, as the PointNet++ encoder's input), and
-optionally turned into their yaw-canonical frame (canonical.py).
+optionally turned into their yaw-canonical frame (i2pbench/layers/canonical.py).
 """
 
 from __future__ import annotations
@@ -20,9 +20,10 @@ from torch import nn
 
 from i2pbench.api import Component, Exchanger, Features, Frame, Keypoints2D, Keypoints3D, LearnedComponent, StageError
 from i2pbench.batching import exchange_one_frame
+from i2pbench.layers.attention import key_mask
+from i2pbench.layers.pointnet2 import normalize_points
 
 from .matching import descriptor_dim_mismatch
-from .pointnet2 import normalize_points
 
 
 def normalize_pixels(uv: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
@@ -39,14 +40,6 @@ def mlp(widths: tuple[int, ...]) -> nn.Sequential:
     layers.pop()
     nn.init.zeros_(layers[-1].bias)
     return nn.Sequential(*layers)
-
-
-def key_mask(mask: torch.Tensor | None) -> torch.Tensor | None:
-    """SDPA's boolean mask [B x 1 x 1 x M] from keypoint masks [B x M]; a frame with no key attends to its padding
-    (its outputs are padding too), so no row of softmax is empty."""
-    if mask is None:
-        return None
-    return (mask | ~mask.any(-1, keepdim=True))[:, None, None, :]
 
 
 class AttentionalUpdate(nn.Module):
@@ -93,7 +86,7 @@ class AttentionExchanger(LearnedComponent, Exchanger):
         "num_heads": 4,
         "pe_mlp": (32, 64, 128),  # hidden widths of the positional encoders (2D: u, v; 3D: x, y, z) before D
         "share_weights": False,  # True: one set of attention weights for both modalities (SuperGlue)
-        "canonical_yaw": False,  # True: 3D positions in their yaw-canonical frame (canonical.py; not the paper's)
+        "canonical_yaw": False,  # True: 3D positions in their yaw-canonical frame (layers/canonical.py; our addition)
     }
 
     def __init__(self, conf: dict[str, Any] | None = None) -> None:

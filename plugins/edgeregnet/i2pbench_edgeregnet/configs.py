@@ -1,7 +1,7 @@
 """Stage configs of EdgeRegNet's learned stages: the paper's size, a smaller one that trains on a CPU, and the
 components of the authors' own network (the `official` size).
 
-The small one also turns on the yaw-canonical frame for 3D inputs (canonical.py), our addition: without it the
+The small one also turns on the yaw-canonical frame for 3D inputs (layers/canonical.py), our addition: without it the
 encoders must learn invariance to the protocol's random yaw from augmentation alone, which a CPU cannot afford.
 
 Keys are stage kinds, values config overrides for that stage's component (`{}`: its defaults, the paper's sizes).

@@ -26,8 +26,8 @@ from i2pbench.api import (
     Matcher,
     Matches,
     StageError,
+    ground_truth_matches,
 )
-from i2pbench.correspondence import ground_truth_matches
 
 from .loss import edgeregnet_loss, log_assignment
 

@@ -15,12 +15,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from i2pbench.methods import Method, MethodPreset, Row, Size
+from i2pbench.api import Method, MethodPreset, Row, Size
 
 from .configs import COMPONENTS, FULL, OFFICIAL_COMPONENTS, OFFICIAL_KEYPOINTS, SMALL, SMALL_KEYPOINTS
 
 if TYPE_CHECKING:
-    from i2pbench.learned import LearnedComponent
+    from i2pbench.api import LearnedComponent
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 EDGES = {"extractor2d": "lsd", "extractor3d": "depth+reflectance"}

@@ -25,8 +25,8 @@ from torch import nn
 
 from i2pbench.api import Component, Exchanger, Features, Frame, Keypoints2D, Keypoints3D, LearnedComponent, StageError
 from i2pbench.batching import exchange_one_frame
+from i2pbench.layers.attention import key_mask
 
-from .attention import key_mask
 from .matching import descriptor_dim_mismatch
 from .official_pointnet2 import OfficialPointNet2, normalize, subsample
 from .official_superpoint import OfficialSuperPoint

@@ -21,8 +21,7 @@ from pathlib import Path
 
 import torch
 
-from i2pbench.errors import WeightsError
-from i2pbench.weights import ImportedWeights
+from i2pbench.api import ImportedWeights, WeightsError
 
 SIZE = "official"
 TRAINED_ON = "authors' release (KITTI 00-08)"

@@ -26,9 +26,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from i2pbench.api import Encoder3D, Frame, Keypoints3D, LearnedComponent, StageError
-
-from . import pointnet2
-from .pointnet2 import farthest_point_sampling, frame_seed, gather
+from i2pbench.layers import pointnet2
+from i2pbench.layers.pointnet2 import farthest_point_sampling, frame_seed, gather
 
 
 def square_distance(src: torch.Tensor, dst: torch.Tensor) -> torch.Tensor:

@@ -7,8 +7,7 @@ the classic stages never need.
 
 from __future__ import annotations
 
-from i2pbench.api import hookimpl
-from i2pbench.hookspecs import Register
+from i2pbench.api import Register, hookimpl
 
 from .method import edgeregnet
 

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from i2pbench.types import Frame, Keypoints2D, Keypoints3D
+from i2pbench.api import Frame, Keypoints2D, Keypoints3D
 
 from .official_matching import filter_matches
 

@@ -17,6 +17,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from i2pbench.api import Encoder2D, Frame, Keypoints2D, LearnedComponent
+from i2pbench.layers.sampling import normalize_images, sample_descriptors
 
 GREY_WEIGHTS = (0.299, 0.587, 0.114)  # ITU-R BT.601, as cv2.cvtColor(RGB2GRAY)
 
@@ -26,32 +27,6 @@ def to_grey(image: np.ndarray, device: torch.device | str = "cpu") -> torch.Tens
     rgb = torch.from_numpy(np.ascontiguousarray(image)).to(device=device, dtype=torch.float32)
     grey = rgb @ torch.tensor(GREY_WEIGHTS, device=device) / 255.0
     return grey[None]
-
-
-def pixel_to_grid(uv: torch.Tensor, size: tuple[int, int], stride: float) -> torch.Tensor:
-    """pixel coordinates [... x 2] -> grid_sample coordinates [... x 2] on a (Wc, Hc) map (align_corners=True)."""
-    cells = (uv - (stride - 1) / 2) / stride
-    extent = torch.tensor([max(size[0] - 1, 1), max(size[1] - 1, 1)], device=uv.device, dtype=uv.dtype)
-    return cells / extent * 2 - 1
-
-
-def sample_descriptors(fmap: torch.Tensor, uv: torch.Tensor, stride: float) -> torch.Tensor:
-    """bilinear lookup of fmap [B x D x Hc x Wc] at pixels uv [B x M x 2] -> [B x M x D]."""
-    grid = pixel_to_grid(uv, (fmap.shape[-1], fmap.shape[-2]), stride)
-    out = F.grid_sample(fmap, grid[:, None], mode="bilinear", padding_mode="border", align_corners=True)
-    return out[:, :, 0].transpose(1, 2)
-
-
-def normalize_images(grey: torch.Tensor, size: torch.Tensor) -> torch.Tensor:
-    """zero mean, unit std (unbiased) per image over its own [H x W] of a padded batch [B x 1 x H' x W']; padding 0."""
-    rows = torch.arange(grey.shape[-2], device=grey.device)
-    cols = torch.arange(grey.shape[-1], device=grey.device)
-    valid = (rows[None, :, None] < size[:, :1, None]) & (cols[None, None, :] < size[:, 1:, None])
-    valid = valid[:, None].to(grey.dtype)
-    count = valid.sum((1, 2, 3), keepdim=True)
-    mean = (grey * valid).sum((1, 2, 3), keepdim=True) / count
-    var = ((grey - mean) ** 2 * valid).sum((1, 2, 3), keepdim=True) / (count - 1).clamp(min=1)
-    return (grey - mean) / var.sqrt().clamp(min=1e-3) * valid
 
 
 def conv(cin: int, cout: int, kernel: int = 3) -> nn.Conv2d:

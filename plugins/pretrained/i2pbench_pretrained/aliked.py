@@ -10,8 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from i2pbench.api import Encoder2D, Frame, Keypoints2D, LearnedComponent
-from i2pbench.components import ConfigError
+from i2pbench.api import ConfigError, Encoder2D, Frame, Keypoints2D, LearnedComponent
 
 from .aliked_net import CONFIGS, AlikedNet
 from .weights import sha256, weight_file

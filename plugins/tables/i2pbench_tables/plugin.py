@@ -9,7 +9,7 @@ not implemented (docs/methods.md says why). The oracle row, which the paper lack
 
 from __future__ import annotations
 
-from i2pbench.hookspecs import hookimpl
+from i2pbench.api import hookimpl
 
 # Table I's rows: DeepI2P's grid classification + PnP, its frustum classification + inverse projection in 3D and 2D,
 # CorrI2P, then EdgeRegNet ("Ours"); every method at the size whose weights are trained here

@@ -1,0 +1,139 @@
+"""The shared layer package (i2pbench.layers): the cache keys of the components built on it are those they had before
+it existed, and a layer's revision moves the key of every component using it, and of no other."""
+
+import hashlib
+import io
+import tokenize
+from pathlib import Path
+
+import pytest
+
+import i2pbench.layers
+from i2pbench import layers
+from i2pbench.plugins import default_registry
+from i2pbench.runs.jobs import _described
+from i2pbench.runs.store import cache_key
+from i2pbench.training_data import signature
+
+LAYERS = Path(i2pbench.layers.__file__).parent
+
+# cache_key of each stage's description ({name, conf, revision, layers}), computed on main before the shared layers
+# moved out of the edgeregnet and corri2p plugins (commit d6c9aec): a run's frame key hashes these with the data,
+# weights and protocol, so equal values here mean every cached result of these components is still found
+STAGE_KEYS = {
+    ("corri2p", "cpu-size", "encoder2d", "corri2p-resnet"): "bc548b2ada5fb6378dfc64f3",
+    ("corri2p", "cpu-size", "encoder3d", "corri2p-pointnet2"): "0a931d4704cb1512938ed40d",
+    ("corri2p", "cpu-size", "exchanger", "corri2p-exchange"): "71ef21603216eff904c8d81f",
+    ("corri2p", "cpu-size", "matcher", "corri2p-overlap"): "e43392a3bbdac9c8d5820e78",
+    ("corri2p", "paper", "encoder2d", "corri2p-resnet"): "f237d01e1b667ca37fd49c66",
+    ("corri2p", "paper", "encoder3d", "corri2p-pointnet2"): "e9b6b266bf8569c65611ebc2",
+    ("corri2p", "paper", "exchanger", "corri2p-exchange"): "bb1e6a08be2488e16c329ef1",
+    ("corri2p", "paper", "matcher", "corri2p-overlap"): "9c59066bcf686f3c7a9c5b35",
+    ("deepi2p", "cpu-size", "encoder2d", "deepi2p-resnet"): "c60400ebbdc28e859f763791",
+    ("deepi2p", "cpu-size", "encoder3d", "deepi2p-pointnet2"): "214a5258b267197756da34fd",
+    ("deepi2p", "cpu-size", "exchanger", "deepi2p-fusion"): "0ee780ac6773137b83df9537",
+    ("deepi2p", "cpu-size", "matcher", "deepi2p-classifier"): "ecf053fdc28eaa75be30e2d6",
+    ("deepi2p", "paper", "encoder2d", "deepi2p-resnet"): "4fdb71bae824efd16865032c",
+    ("deepi2p", "paper", "encoder3d", "deepi2p-pointnet2"): "c4866230795cbdf257f92c6b",
+    ("deepi2p", "paper", "exchanger", "deepi2p-fusion"): "8b83117c5fc6ad26a9fcb788",
+    ("deepi2p", "paper", "matcher", "deepi2p-classifier"): "d883676d9605a01b927827e5",
+    ("edgeregnet", "cpu-size", "encoder2d", "superpoint-cnn"): "682c0a262a5dfa992beb6aed",
+    ("edgeregnet", "cpu-size", "encoder3d", "pointnet2"): "615cf251df4948014b04707c",
+    ("edgeregnet", "cpu-size", "exchanger", "attention"): "a8b4382819561404a69c650e",
+    ("edgeregnet", "paper", "encoder2d", "superpoint-cnn"): "9854dcedb4774d8aa2dba136",
+    ("edgeregnet", "paper", "encoder3d", "pointnet2"): "ce884b4da2aeaba4e0f8a41a",
+    ("edgeregnet", "paper", "exchanger", "attention"): "4c5869e6904ff800f11e2a03",
+    ("edgeregnet", "official", "encoder3d", "pointnet2-official"): "70ceafd61830186c179992ab",
+    ("edgeregnet", "official", "exchanger", "attention-official"): "ca8625723eeb02fb592247eb",
+    ("edgeregnet", "official", "matcher", "match-assignment-official"): "b012e61cc4eb4fbe109e7fe2",
+}
+
+# each layer module's revision and the fingerprint of its code (comments, blank lines and trailing spaces left out).
+# A failure here means a layer's code changed: if its outputs can change for the same inputs, bump the module's
+# REVISION (every component using it then gets a new cache key and recomputes); either way record both here.
+LAYER_CODE = {
+    "attention": (0, "573a14854cd7"),
+    "canonical": (0, "0bde0510db44"),
+    "frame_norm": (0, "b360eba841ba"),
+    "global_pointnet2": (0, "447f6cd99b1a"),
+    "kernels": (0, "880fdfd2b2da"),
+    "mlp": (0, "1e8fb86b56f9"),
+    "nodes": (0, "57e284127b45"),
+    "pointnet2": (0, "2e905e052cec"),
+    "resnet": (0, "38d6e5b5dcfe"),
+    "sampling": (0, "dd084e30084c"),
+}
+
+
+def fingerprint(path: Path) -> str:
+    text = path.read_text().replace("\r\n", "\n")
+    lines = text.split("\n")
+    for token in tokenize.generate_tokens(io.StringIO(text).readline):
+        if token.type == tokenize.COMMENT:
+            row, col = token.start
+            lines[row - 1] = lines[row - 1][:col]
+    return hashlib.sha256("\n".join(line.rstrip() for line in lines if line.strip()).encode()).hexdigest()[:12]
+
+
+@pytest.fixture(scope="module")
+def registry():
+    return default_registry()
+
+
+def stage(registry, method: str, size: str, kind: str):
+    row = registry.method(method).row(size)
+    return registry.component(kind, row[kind])(row["confs"].get(kind))
+
+
+@pytest.mark.parametrize(("method", "size", "kind", "name"), sorted(STAGE_KEYS))
+def test_stage_keys_of_components_on_shared_layers_are_unchanged(registry, method, size, kind, name):
+    component = stage(registry, method, size, kind)
+    assert component.name == name
+    assert layers.used_layers(type(component))  # built on the shared layers: the components the move could touch
+    assert cache_key(_described(component)) == STAGE_KEYS[method, size, kind, name]
+
+
+def test_each_layer_module_code_matches_its_recorded_revision():
+    modules = {p.stem: p for p in LAYERS.glob("*.py") if p.stem != "__init__"}
+    assert set(modules) == set(LAYER_CODE), "a layer module was added or removed: record it in LAYER_CODE"
+    changed = []
+    for name, path in sorted(modules.items()):
+        revision, code = LAYER_CODE[name]
+        module = __import__(f"i2pbench.layers.{name}", fromlist=["REVISION"])
+        if (module.REVISION, fingerprint(path)) != (revision, code):
+            changed.append(f"{name}: REVISION {module.REVISION}, fingerprint {fingerprint(path)!r}")
+    assert not changed, "layer code changed; bump REVISION if outputs can change, then record:\n" + "\n".join(changed)
+
+
+def test_components_use_the_layers_their_code_imports(registry):
+    def used(kind, name):
+        return layers.used_layers(registry.component(kind, name))
+
+    # through the plugin's own modules and the layers' imports of each other
+    assert used("encoder3d", "corri2p-pointnet2") == (
+        "canonical",
+        "frame_norm",
+        "global_pointnet2",
+        "kernels",
+        "pointnet2",
+    )
+    assert used("encoder2d", "superpoint-cnn") == ("sampling",)
+    assert used("matcher", "deepi2p-classifier") == ("mlp",)
+    assert used("matcher", "lightglue") == ()
+    assert used("extractor2d", "lsd") == ()  # a classic stage: no layer
+
+
+def test_a_layer_revision_moves_the_keys_of_the_components_using_it_only(registry, monkeypatch):
+    edge = stage(registry, "edgeregnet", "cpu-size", "encoder3d")
+    corr = stage(registry, "corri2p", "cpu-size", "encoder3d")
+    image = stage(registry, "edgeregnet", "cpu-size", "encoder2d")
+    before = [cache_key(_described(c)) for c in (edge, corr, image)]
+    stored = [signature(c) for c in (edge, corr, image)]
+    monkeypatch.setattr(layers.pointnet2, "REVISION", 2)
+    assert _described(corr)["layers"] == {"pointnet2": 2} and _described(edge)["layers"] == {"pointnet2": 2}
+    after = [cache_key(_described(c)) for c in (edge, corr, image)]
+    assert after[0] != before[0] and after[1] != before[1]  # EdgeRegNet's and CorrI2P's encoders both recompute
+    assert after[2] == before[2] and "layers" not in _described(image)  # the image encoder uses no PointNet++ layer
+    # the training cache of prepared inputs (the grouping) is refilled too
+    assert [signature(c) for c in (edge, corr, image)][:2] != stored[:2]
+    assert signature(image) == stored[2]
