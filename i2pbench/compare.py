@@ -4,7 +4,15 @@ Rows are matched by dataset, split, combination and weights. A row regresses whe
 way by more than its tolerance, when it becomes NaN where the baseline had a value (e.g. no frame passes the RTE/RRE
 filter any more), or when its frame count changes; a baseline row missing from the new leaderboard is a failure too.
 Tolerances are absolute for accuracy metrics (`acc=-2`: at most 2 points lower) and ratios for latency
-(`latency=x1.5`: at most 1.5 times slower), because seconds mean nothing across machines.
+(`latency=x1.5`: at most 1.5 times slower), because seconds mean nothing across machines. A metric a plugin
+registers (`metric_registry`) is checked under its name.
+
+When both boards keep per-frame values of a row on the same frames (`uncertainty`), every checked metric that moved
+is tested paired: McNemar's exact test for Acc., a paired bootstrap for RTE and RRE, and the report says whether the
+move is significant. With `alpha` a move beyond tolerance that is not significant at that level is reported as
+noise instead of failing. The golden gate does not pass it: its pipelines are deterministic, so any frame that
+changes is a real change of the code, and on its 6 frames McNemar's test cannot call fewer than 6 frames lost in one
+direction significant (5 of 5: p = 2 / 2^5 = 0.0625), so a significance-gated gate there would pass nearly anything.
 
 A table the gate cannot trust is an error, not a verdict: an empty, header-only, binary or ragged file would
 otherwise pass vacuously (no baseline row to fail) or compare misaligned columns.
@@ -20,6 +28,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from . import metric_registry, uncertainty
 from .components import STAGE_ORDER
 from .errors import I2PBenchError
 from .leaderboard import (
@@ -33,6 +42,7 @@ from .leaderboard import (
     read,
     stage_latency,
 )
+from .stats import Paired
 
 DEFAULT_TOLERANCE = "acc=-2,rte=+0.05,rre=+0.2"
 # metric -> (leaderboard column, higher is better)
@@ -49,6 +59,12 @@ METRICS: dict[str, tuple[str, bool]] = {
 }
 
 
+def known() -> dict[str, tuple[str, bool]]:
+    """METRICS and the metrics plugins register (under their names)."""
+    plugins = metric_registry.active()[len(metric_registry.BUILTIN) :]
+    return {**METRICS, **{m.name: (m.column, bool(m.higher_is_better)) for m in plugins if m.column}}
+
+
 @dataclass(frozen=True)
 class Tolerance:
     """How far one metric may move in its worse direction: `slack` units, or a factor of `ratio`."""
@@ -59,11 +75,11 @@ class Tolerance:
 
     @property
     def column(self) -> str:
-        return METRICS[self.metric][0]
+        return known()[self.metric][0]
 
     @property
     def higher_is_better(self) -> bool:
-        return METRICS[self.metric][1]
+        return known()[self.metric][1]
 
     def limit(self, base: float) -> float:
         """The worst value still accepted, given the baseline's."""
@@ -98,8 +114,8 @@ def parse_tolerances(text: str) -> list[Tolerance]:
 def _parse_one(item: str) -> Tolerance:
     metric, sep, value = item.partition("=")
     metric, value = metric.strip(), value.strip()
-    if not sep or metric not in METRICS:
-        raise I2PBenchError(f"tolerance {item!r}: expected METRIC=VALUE with METRIC one of {', '.join(METRICS)}")
+    if not sep or metric not in known():
+        raise I2PBenchError(f"tolerance {item!r}: expected METRIC=VALUE with METRIC one of {', '.join(known())}")
     if value.startswith("x"):
         ratio = _number(item, value[1:])
         if ratio < 1:
@@ -108,7 +124,7 @@ def _parse_one(item: str) -> Tolerance:
     if metric.startswith("latency"):
         raise I2PBenchError(f"tolerance {item!r}: latency tolerances are ratios such as {metric}=x1.5, not times")
     slack = _number(item, value)
-    worse = "-" if METRICS[metric][1] else "+"
+    worse = "-" if known()[metric][1] else "+"
     if value[0] in "+-" and value[0] != worse and slack != 0:
         hint = f"{metric}={worse}{abs(slack):g}"
         raise I2PBenchError(f"tolerance {item!r}: {metric} gets worse as it goes {worse}; write {hint}")
@@ -134,6 +150,7 @@ class Finding:
     base: float = math.nan
     new: float = math.nan
     limit: float = math.nan
+    test: Paired | None = None  # the paired test of the move, when both boards keep the row's per-frame values
 
 
 @dataclass
@@ -142,6 +159,8 @@ class Report:
     compared: int = 0
     added: list[tuple] = field(default_factory=list)  # rows only in the new leaderboard (reported, not checked)
     tolerances: list[Tolerance] = field(default_factory=list)
+    moves: list[Finding] = field(default_factory=list)  # tested moves within tolerance, or dismissed as noise
+    alpha: float | None = None  # beyond tolerance but not significant at alpha: a move, not a finding
 
     @property
     def ok(self) -> bool:
@@ -226,39 +245,58 @@ def compare(
     base: pd.DataFrame,
     tolerances: list[Tolerance],
     names: tuple[str, str] = ("new leaderboard", "baseline"),
+    alpha: float | None = None,
 ) -> Report:
-    """Check every baseline row against the new leaderboard; `names` say which table an error is about."""
+    """Check every baseline row against the new leaderboard; `names` say which table an error is about. With
+    `alpha`, a move beyond tolerance whose paired test is not significant at `alpha` does not fail."""
     new, base = _indexed(new, names[0]), _indexed(base, names[1])
     for tol in tolerances:
         if tol.column not in base:
             raise I2PBenchError(f"tolerance {tol}: {names[1]} has no column {tol.column!r}")
-    report = Report(added=[k for k in new.index if k not in base.index], tolerances=list(tolerances))
+    report = Report(added=[k for k in new.index if k not in base.index], tolerances=list(tolerances), alpha=alpha)
     for key, b in base.iterrows():
         if key not in new.index:
             report.findings.append(Finding(key, "missing"))
             continue
         report.compared += 1
-        report.findings += _check_row(key, new.loc[key], b, tolerances)
+        for finding, beyond in _check_row(key, new.loc[key], b, tolerances):
+            noise = alpha is not None and finding.test is not None and finding.test.p >= alpha
+            (report.findings if beyond and not noise else report.moves).append(finding)
     return report
 
 
-def _check_row(key: tuple, new: pd.Series, base: pd.Series, tolerances: list[Tolerance]) -> list[Finding]:
+def _check_row(key: tuple, new: pd.Series, base: pd.Series, tolerances: list[Tolerance]) -> list[tuple[Finding, bool]]:
+    """(finding, beyond tolerance) for a changed frame count and for every checked metric that moved and could be
+    tested paired, or moved beyond its tolerance."""
     findings = []
     if "frames" in base and _value(new, "frames") != _value(base, "frames"):
-        findings.append(Finding(key, "frames", _value(base, "frames"), _value(new, "frames")))
+        findings.append((Finding(key, "frames", _value(base, "frames"), _value(new, "frames")), True))
+    tested = {m.column: m for m in uncertainty.with_interval(metric_registry.active())}
     for tol in tolerances:
         b, n = _value(base, tol.column), _value(new, tol.column)
-        if tol.regressed(n, b):
-            findings.append(Finding(key, tol.metric, b, n, tol.limit(b)))
+        test = uncertainty.paired(new, base, tested[tol.column]) if tol.column in tested else None
+        beyond = tol.regressed(n, b)
+        if beyond or (test is not None and not _same(n, b)):
+            findings.append((Finding(key, tol.metric, b, n, tol.limit(b), test), beyond))
     return findings
 
 
+def _same(a: float, b: float) -> bool:
+    return (math.isnan(a) and math.isnan(b)) or abs(a - b) <= 1e-9 * max(1.0, abs(b))
+
+
 def format_report(report: Report) -> str:
-    """A readable diff: each failing row, what moved and the limit it crossed; then a one-line verdict."""
+    """A readable diff: each failing row, what moved and the limit it crossed, and whether the move is significant
+    where both boards keep per-frame values; moves within tolerance (or dismissed as noise); a one-line verdict."""
     lines = [f"tolerances: {', '.join(str(t) for t in report.tolerances) or 'none'}"]
+    if report.alpha is not None:
+        lines[0] += f"; a move beyond tolerance fails only when significant (p < {report.alpha:g})"
     for key in dict.fromkeys(f.row for f in report.findings):
         lines.append(f"FAIL  {' / '.join(key)}")
         lines += [f"        {_describe(f)}" for f in report.findings if f.row == key]
+    for key in dict.fromkeys(f.row for f in report.moves):
+        lines.append(f"moved {' / '.join(key)}")
+        lines += [f"        {_describe(f)}" for f in report.moves if f.row == key]
     lines += [f"new   {' / '.join(key)} (not in the baseline; not checked)" for key in report.added]
     missing = sum(f.what == "missing" for f in report.findings)
     regressed = len({f.row for f in report.findings}) - missing
@@ -276,4 +314,5 @@ def _describe(f: Finding) -> str:
         return f"frames: {f.base:g} -> {f.new:g} (results over different frames are not comparable)"
     if math.isnan(f.new):
         return f"{f.what}: {f.base:.4g} -> NaN (no value where the baseline had one)"
-    return f"{f.what}: {f.base:.4g} -> {f.new:.4g} ({f.new - f.base:+.4g}; limit {f.limit:.4g})"
+    test = f"; {f.test}" if f.test is not None else ""
+    return f"{f.what}: {f.base:.4g} -> {f.new:.4g} ({f.new - f.base:+.4g}; limit {f.limit:.4g}{test})"

@@ -5,7 +5,9 @@ side by side. `build` reads one leaderboard per dataset and finds each preset ro
 (the clean protocol only), so the table shows what the leaderboards measured and nothing recomputed: per dataset
 RTE, RRE, Acc. with its chance successes, Acc. with true matches, true matches and latency; once per row the
 weights and model size.
-A row a board lacks is "not run" there, never silently zero.
+A row a board lacks is "not run" there, never silently zero. Where a board keeps per-frame values, each row's Acc.
+is tested against the row above it on the same frames (McNemar's exact test): `<dataset> Acc. vs row above` says
+whether the two differ significantly, so a reader does not take a one-frame gap for a ranking.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from . import metric_registry, uncertainty
 from .errors import I2PBenchError
 from .grid import expand
 from .leaderboard import ACC, ACC_SKILL, CHANCE, LATENCY_MEDIAN, MODEL_SIZE, RRE, RTE, TRUE_MATCHES, to_markdown
@@ -23,6 +26,7 @@ from .plugins import Registry
 PER_DATASET = ("frames", RTE, RRE, ACC, CHANCE, ACC_SKILL, TRUE_MATCHES, LATENCY_MEDIAN)
 COUNTS = ("frames", CHANCE)  # shown as whole numbers
 NOT_RUN = "not run"
+VERSUS = "Acc. vs row above"
 
 
 @dataclass(frozen=True)
@@ -57,7 +61,7 @@ def build(rows: list[TableRow], boards: dict[str, pd.DataFrame]) -> pd.DataFrame
     """Rows down, `PER_DATASET` columns per board (named "<dataset> <column>") across, weights and size once."""
     if not boards:
         raise I2PBenchError("a comparison table needs at least one leaderboard (DATASET=PATH)")
-    out = []
+    out, found_rows = [], {dataset: [] for dataset in boards}
     for row in rows:
         cells: dict[str, object] = {"method": row.name}
         weights, trained_on, sizes = [], [], []
@@ -65,11 +69,13 @@ def build(rows: list[TableRow], boards: dict[str, pd.DataFrame]) -> pd.DataFrame
             found = _clean(board)[lambda b, label=row.label: b["combination"] == label]
             if found.empty:
                 cells.update({f"{dataset} {column}": None for column in PER_DATASET})
+                found_rows[dataset].append(None)
                 continue
             if len(found) > 1:  # one label, several weights: which row the table shows would be a guess
                 shown = ", ".join(map(str, found["weights"]))
                 raise I2PBenchError(f"leaderboard of {dataset} has {len(found)} rows {row.label!r} ({shown})")
             first = found.iloc[0]
+            found_rows[dataset].append(first)
             cells.update({f"{dataset} {column}": first.get(column) for column in PER_DATASET})
             weights.append(str(first.get("weights", "")))
             trained_on.append(str(first.get("weights_trained_on", "")))
@@ -79,7 +85,21 @@ def build(rows: list[TableRow], boards: dict[str, pd.DataFrame]) -> pd.DataFrame
         cells[MODEL_SIZE] = sizes[0] if sizes else None
         cells["combination"] = row.label
         out.append(cells)
-    return pd.DataFrame(out)
+    table = pd.DataFrame(out)
+    for dataset, found in found_rows.items():
+        table[f"{dataset} {VERSUS}"] = _versus_above(found)
+    return table
+
+
+def _versus_above(rows: list[pd.Series | None]) -> list[str]:
+    """Each row's Acc. against the row above on one dataset: "no (McNemar p=...)" when the difference is not
+    significant, "yes (...)" when it is, "" where either row is missing or the boards keep no per-frame values."""
+    acc = metric_registry.by_name()["acc_pct"]
+    out = [""]
+    for above, row in zip(rows, rows[1:], strict=False):
+        test = uncertainty.paired(above, row, acc) if above is not None and row is not None else None
+        out.append("" if test is None else f"{'yes' if test.significant else 'no'} ({test.test} p={test.p:.2g})")
+    return out[: len(rows)]
 
 
 def _clean(board: pd.DataFrame) -> pd.DataFrame:
@@ -97,7 +117,8 @@ def missing(table: pd.DataFrame, datasets: list[str]) -> dict[str, list[str]]:
 
 def to_text(table: pd.DataFrame, rows: list[TableRow], sources: dict[str, str]) -> str:
     """The Markdown table, then where each dataset's numbers come from, the rows it lacks and what each row is."""
-    shown = _shown(table.drop(columns="combination"))
+    untested = [c for c in table.columns if c.endswith(VERSUS) and not table[c].astype(bool).any()]
+    shown = _shown(table.drop(columns=["combination", *untested]))
     lines = [to_markdown(shown, list(shown.columns)), ""]
     for dataset, lacking in missing(table, list(sources)).items():
         absent = f"; {NOT_RUN} there: {', '.join(lacking)}" if lacking else ""

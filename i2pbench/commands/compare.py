@@ -29,16 +29,27 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help=f"comma-separated METRIC=VALUE: +d/-d absolute slack in the worse direction, xR a ratio (required for "
         f"latency); metrics: {', '.join(METRICS)} (default {DEFAULT_TOLERANCE})",
     )
+    p.add_argument(
+        "--alpha",
+        type=float,
+        help="fail a move beyond tolerance only when a paired test on the same frames (McNemar for acc, a paired "
+        "bootstrap for rte/rre) finds it significant at this level, e.g. 0.05; without it every move beyond "
+        "tolerance fails (the golden gate: deterministic pipelines on 6 frames; docs/leaderboards.md)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     """Errors are I2PBenchErrors, which the CLI prints on one line and turns into exit status 2."""
     from ..compare import compare, format_report, parse_tolerances, read_board
+    from ..errors import I2PBenchError
     from ..runs.board_env import warnings
 
     tolerances = parse_tolerances(args.tolerance)
     new, base = read_board(args.new, "new leaderboard"), read_board(args.baseline, "baseline")
-    report = compare(new, base, tolerances, names=(f"new leaderboard {args.new}", f"baseline {args.baseline}"))
+    if args.alpha is not None and not 0 < args.alpha < 1:
+        raise I2PBenchError(f"--alpha {args.alpha:g}: a significance level between 0 and 1, such as 0.05")
+    names = (f"new leaderboard {args.new}", f"baseline {args.baseline}")
+    report = compare(new, base, tolerances, names=names, alpha=args.alpha)
     for line in warnings((args.new, new), (args.baseline, base)):  # once both are judged leaderboards
         print(f"i2pbench: warning: {line}", file=sys.stderr)
     print(format_report(report))
