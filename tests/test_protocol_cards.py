@@ -30,7 +30,8 @@ from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
 from i2pbench.scoring import cards
 from i2pbench.scoring.cards import NATIVE, ProtocolCard
-from i2pbench.scoring.rules import ScoringRules, frame_errors, score
+from i2pbench.scoring.rules import ScoringRules
+from i2pbench.scoring.score import frame_errors, score
 
 
 def rot(axis: str, deg: float) -> np.ndarray:
@@ -197,3 +198,9 @@ def test_a_plugin_registers_its_own_card_and_cannot_take_a_builtin_name():
 def test_an_unknown_protocol_suggests_the_closest():
     with pytest.raises(Exception, match="did you mean 'corri2p'"):
         cards.find("corri2")
+
+
+def test_the_cards_default_name_and_version_are_the_protocols():
+    from i2pbench import protocol
+
+    assert (cards.DEFAULT_NAME, cards.DEFAULT_VERSION) == (protocol.DEFAULT_NAME, protocol.DEFAULT_VERSION)

@@ -31,7 +31,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "RUN_DIR/invocations), 'last' (default), or 'all' the records in the store")  # fmt: skip
     for option, (field, metavar, what) in THRESHOLDS.items():
         p.add_argument(option, dest=field, type=positive_float, metavar=metavar, help=f"{what} (default: the run's)")
-    p.add_argument("--out", help="also write the leaderboard to STEM.csv, STEM.md and STEM.parquet")
+    p.add_argument("--rules", metavar="NAMES", help="score the run under these protocol cards' rules instead, one "
+                   "table (comma-separated names, or all; docs/protocol.md)")  # fmt: skip
+    p.add_argument("--rules-only", action="store_true", help="with --rules: score cards whose inputs differ from "
+                   "the run's by their rules alone instead of listing them as needing a rerun")  # fmt: skip
+    p.add_argument("--out", help="also write the leaderboard to STEM.csv, STEM.md and STEM.parquet (with --rules: "
+                   "the table to STEM.csv and STEM.md)")  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
@@ -41,6 +46,10 @@ def run(args: argparse.Namespace) -> int:
     from ..runs.evaluate import evaluate
 
     thresholds = {field: getattr(args, field) for field, *_ in THRESHOLDS.values()}
+    if args.rules or args.rules_only:
+        from .evaluate_rules import run_rules
+
+        return run_rules(args, thresholds)
     result = evaluate(args.run_dir, args.invocation, **thresholds)
     print(leaderboard.to_markdown(result.board))
     p = result.protocol

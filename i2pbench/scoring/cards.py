@@ -15,10 +15,17 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from ..errors import I2PBenchError, PluginError
-from ..protocol import DEFAULT_NAME, DEFAULT_VERSION, Protocol
 from .rules import ScoringRules
+
+if TYPE_CHECKING:  # cards are registered by `i2pbench plugins` too, which must import neither numpy nor pandas
+    import pandas as pd
+
+    from ..protocol import Protocol
+
+DEFAULT_NAME, DEFAULT_VERSION = "edgeregnet", 1  # as i2pbench.protocol's (a test checks they agree)
 
 TAU = 2 * math.pi
 SOURCES = {  # repository -> the commit every line number below refers to
@@ -86,6 +93,8 @@ class ProtocolCard:
 
     def protocol(self, seed: int = 0) -> Protocol:
         """The Protocol a run under this card uses: thresholds from its rules, its name and version on the card."""
+        from ..protocol import Protocol
+
         r = self.rules
         return Protocol(seed=seed, acc_rre_deg=r.acc_rre_deg, acc_rte_m=r.acc_rte_m, filter_rre_deg=r.filter_rre_deg,
                         filter_rte_m=r.filter_rte_m, rre_convention=r.rre, name=self.name,
@@ -297,3 +306,35 @@ def of(protocol: Protocol, registry=None) -> ProtocolCard:
         raise I2PBenchError(f"the run was made under protocol {protocol.name} v{protocol.version}; the installed "
                             f"card is v{card.version}: evaluate it with the i2pbench that has that card")  # fmt: skip
     return card
+
+
+def for_run(name: str, seed: int, dataset: str, registry=None) -> Protocol:
+    """The Protocol `run --protocol NAME` runs under; refused, listing each input, when i2pbench cannot give the
+    card's stages what its paper gave them (a run would otherwise be scored as that paper's while fed otherwise)."""
+    card = find(name, registry)
+    unmet = card.unmet(dataset)
+    if unmet:
+        lines = "\n  ".join(unmet)
+        raise I2PBenchError(
+            f"protocol {card.name} v{card.version} ({card.paper}) needs inputs i2pbench cannot give its stages on "
+            f"{dataset} yet, so nothing was run:\n  {lines}\nto score an existing run by its scoring rules alone: "
+            f"i2pbench evaluate RUN_DIR --rules {card.name} --rules-only"
+        )
+    return card.protocol(seed)
+
+
+def label(protocol: Protocol) -> str:
+    """'name vN', the protocol column of a leaderboard row."""
+    return f"{protocol.name} v{protocol.version}"
+
+
+def rescored(records: pd.DataFrame, protocol: Protocol) -> pd.DataFrame:
+    """The records as the protocol's card scores them: under the default card unchanged; under another, rte_m and
+    rre_deg by its rules and the frames it leaves out (skipped failures, DeepI2P's all-inlier frames) dropped, so
+    the leaderboard's metrics (thresholds from the same card) give its Acc., means and stds."""
+    if (protocol.name, protocol.version) == (DEFAULT_NAME, DEFAULT_VERSION) or records.empty:
+        return records
+    from .score import frame_errors
+
+    errors = frame_errors(records, of(protocol).rules)
+    return records.assign(rte_m=errors["rte"], rre_deg=errors["rre"])[errors["scored"]]
