@@ -124,6 +124,9 @@ def _run(argv: Sequence[str]) -> int:
     except OSError as exc:  # the machine's, not a bug (an unwritable HOME or folder, a full disk): the path at fault
         print(f"i2pbench: error: {os_problem(exc)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C outside a run's frames (`run` itself reports what finished): no traceback
+        print("i2pbench: interrupted (Ctrl-C)", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -99,6 +99,10 @@ def run(args: argparse.Namespace) -> int:
         records = _run_grid(registry, combinations, dataset, frame_ids, protocols, store, invocation.id, args)
     except OSError as exc:  # the store's disk full or gone read-only: frames written so far stay
         raise _store_failed(exc, store, invocation) from None
+    except KeyboardInterrupt as exc:  # Ctrl-C: workers stopped, finished frames kept, the board of those printed
+        from ..interrupts import stopped
+
+        return stopped(exc, store, invocation, protocols[0])
     board = leaderboard.build(records, protocols[0])
     counts = _summary(records, board, invocation.id, time.perf_counter() - start)
     invocation.finish(**counts)

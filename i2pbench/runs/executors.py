@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import multiprocessing
 import os
+import signal
 import sys
 from collections.abc import Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -28,6 +29,7 @@ import pandas as pd
 
 from ..data.base import Dataset
 from ..errors import I2PBenchError
+from ..interrupts import Interrupted
 from ..lifeline import exit_with_parent
 from ..pipeline import Combination
 from ..plugins import Registry
@@ -168,10 +170,19 @@ def run_work(
     if progress and work_plan.records:
         progress(len(work_plan.records))
     if work_plan.to_compute:
-        run_plan(work_plan, work, store, executor, progress, chunk_size)
+        try:
+            run_plan(work_plan, work, store, executor, progress, chunk_size)
+        except KeyboardInterrupt as exc:  # the user's Ctrl-C: the workers are stopped; say what finished
+            finished = [(j, f) for j, job in enumerate(work.jobs) for f in frame_ids if _done(work_plan, j, f)]
+            records = [{**work_plan.record(j, f), **labels(work.jobs[j])} for j, f in finished]
+            raise Interrupted(records) from exc
     if progress and work_plan.same:
         progress(len(work_plan.same))
     return [{**work_plan.record(j, f), **labels(job)} for j, job in enumerate(work.jobs) for f in frame_ids]
+
+
+def _done(work_plan: Plan, job: int, frame_id: str) -> bool:
+    return work_plan.same.get((job, frame_id), (job, frame_id)) in work_plan.records
 
 
 def run_plan(
@@ -228,6 +239,7 @@ _WORKER: Worker | None = None  # a pool process's worker, built once by its init
 def _init_pool_worker(work: Work, store_root: str, threads: int, device: str | None) -> None:
     global _WORKER
     exit_with_parent()  # else a killed driver leaves its workers blocked on the task queue, weights in memory
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's: it stops the run and terminates us
     _WORKER = Worker(work, ResultsStore(store_root), threads, device)
 
 
@@ -275,11 +287,27 @@ class LocalExecutor:
                 "a worker process died (killed, or out of memory); the frames it finished are stored, "
                 "so running the same command again resumes"
             ) from exc
+        except KeyboardInterrupt:
+            self._terminate()
+            raise
 
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+
+    def _terminate(self) -> None:
+        """Stop every worker now (shutdown would let each finish its chunk first): frames they finished are stored,
+        a frame they were writing leaves a temp file the store sweeps when next opened."""
+        pool, self._pool = self._pool, None
+        if pool is None:
+            return
+        processes = list((getattr(pool, "_processes", None) or {}).values())  # no public way before Python 3.14
+        for process in processes:
+            process.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.join(timeout=10)
 
 
 EXECUTORS = ("local", "ray")
