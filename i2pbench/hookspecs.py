@@ -119,14 +119,3 @@ HOOK_NAMES: tuple[str, ...] = (
     "register_protocols",
     "register_metrics",
 )
-
-# The hook that registers each stage kind.
-STAGE_HOOKS: dict[str, str] = {
-    "extractor2d": "register_extractors_2d",
-    "extractor3d": "register_extractors_3d",
-    "encoder2d": "register_encoders_2d",
-    "encoder3d": "register_encoders_3d",
-    "exchanger": "register_exchangers",
-    "matcher": "register_matchers",
-    "solver": "register_pose_solvers",
-}

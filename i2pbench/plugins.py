@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 import pluggy
 
 from . import hookspecs
-from .components import STAGE_BASES, Component
+from .components import STAGE_BASES, STAGES, Component
 from .entry_points import EntryPoint, installed
 from .errors import PluginError
 from .methods import Method
@@ -251,11 +251,11 @@ def _warn(plugin: str, problem: str) -> None:
 
 
 def _collect(pm: pluggy.PluginManager, plugin: str, hook_name: str) -> list[tuple[tuple[Any, ...], dict[str, Any]]]:
-    """What one plugin registers from one hook (each plugin is called on its own, so it owns what it registers)."""
+    """What one plugin registers from one hook: the hook is called through pluggy on that plugin alone (a subset
+    hook caller), so each registration is attributed to the plugin that made it."""
     out: list[tuple[tuple[Any, ...], dict[str, Any]]] = []
-    for impl in getattr(pm.hook, hook_name).get_hookimpls():
-        if impl.plugin_name == plugin:
-            impl.function(register=lambda *args, **kwargs: out.append((args, kwargs)))
+    others = [p for name, p in pm.list_name_plugin() if name != plugin]
+    pm.subset_hook_caller(hook_name, others)(register=lambda *args, **kwargs: out.append((args, kwargs)))
     return out
 
 
@@ -411,7 +411,8 @@ def _register(registry: Registry, pm: pluggy.PluginManager, plugin: str, strict:
     """Add everything one plugin registers, or (when any of it is refused) nothing at all; `strict` imports what
     was registered by path, so a wrong path fails here."""
     trial = _copy(registry)
-    hooks = {**hookspecs.STAGE_HOOKS, "dataset": "register_datasets", "corruption": "register_corruptions"}
+    hooks = {kind: spec.hook for kind, spec in STAGES.items()}
+    hooks |= {"dataset": "register_datasets", "corruption": "register_corruptions"}
     for kind, hook in hooks.items():
         for args, kwargs in _collect(pm, plugin, hook):
             aliases = kwargs.pop("aliases", ())

@@ -4,8 +4,9 @@ import pytest
 import toy_plugin
 
 from i2pbench.api import Corruption, Encoder3D, Exchanger, Method, Metric, Size, hookimpl
+from i2pbench.components import STAGES
 from i2pbench.errors import PluginError
-from i2pbench.hookspecs import HOOK_NAMES, STAGE_HOOKS
+from i2pbench.hookspecs import HOOK_NAMES
 from i2pbench.plugins import build_registry, components_of
 from i2pbench.scoring.cards import NATIVE, ProtocolCard
 from i2pbench.scoring.rules import ScoringRules
@@ -105,7 +106,7 @@ def test_each_stage_hook_registers_its_kind(registry):
         "matcher": "truth",
         "solver": "truth",
     }
-    assert set(expected) == set(STAGE_HOOKS)
+    assert set(expected) == set(STAGES)
     for kind, name in expected.items():
         assert registry.owner(kind, name) == "every-hook"
 

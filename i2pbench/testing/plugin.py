@@ -5,20 +5,23 @@ from __future__ import annotations
 import functools
 from typing import Any
 
-from ..components import Component
-from ..hookspecs import STAGE_HOOKS
-from ..plugins import LazyComponent
+import pluggy
+
+from .. import hookspecs
+from ..components import STAGES, Component
+from ..plugins import ENTRY_POINT_GROUP, LazyComponent
 
 
 def registered_components(plugin: object) -> list[type[Component]]:
     """Every class the plugin's stage hooks register, in hook order (those registered by import path imported), so a
     test can run the kit on each."""
     owner = getattr(plugin, "__name__", type(plugin).__name__)
+    pm = pluggy.PluginManager(ENTRY_POINT_GROUP)  # the plugin alone, its hooks checked against the specs
+    pm.add_hookspecs(hookspecs)
+    pm.register(plugin, name=owner)
     found: list[type[Component]] = []
-    for kind, hook in STAGE_HOOKS.items():
-        impl = getattr(plugin, hook, None)
-        if callable(impl):
-            impl(register=functools.partial(_add, found, kind, owner))
+    for kind, spec in STAGES.items():
+        getattr(pm.hook, spec.hook)(register=functools.partial(_add, found, kind, owner))
     return found
 
 
