@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import metric_registry
+from . import metric_registry, uncertainty
 from .components import STAGE_ORDER
 from .metric_registry import (  # noqa: F401 (the board's column names, read from here by the other modules)
     ACC,
@@ -100,6 +100,7 @@ def _row(records: pd.DataFrame, protocol: Protocol, metrics: tuple[Metric, ...])
         MODEL_SIZE: round(float(first["model_size_mb"]), 3),
         **_latency(records),
         **cells,  # the metrics plugins register
+        **uncertainty.cells(records, protocol, metrics),
     }
 
 
@@ -124,6 +125,9 @@ def build(
     board["severity"] = [str(int(v)) if c else "" for c, v in zip(board["corruption"], board["severity"], strict=True)]
     board["method"] = _methods(board)
     board["protocol"] = label(protocol)  # the card and its version
+    named = {m.name: m for m in metrics}
+    if "acc_pct" in named and "rre_mean" in named:  # rows are ranked by these two
+        board[uncertainty.VERSUS] = uncertainty.versus_above(board, named["acc_pct"], named["rre_mean"], CONDITION)
     return board[[*GROUP, *CONDITION, *(c for c in board.columns if c not in GROUP + CONDITION)]]
 
 
@@ -179,9 +183,14 @@ DISPLAY = [
 
 
 def to_markdown(board: pd.DataFrame, columns: list[str] | None = None) -> str:
-    """A Markdown table of `columns` (default DISPLAY, less the columns that are empty in every row)."""
-    columns = columns or [c for c in DISPLAY if c in board and not (board[c].astype(str) == "").all()]
-    shown = board[[c for c in columns if c in board]].copy()
+    """A Markdown table of `columns` (default DISPLAY, each interval after its metric, then the columns of metrics
+    plugins registered, less the columns that are empty in every row). An interval shows as "[low, high]"."""
+    shown = _with_intervals(board)
+    if columns is None:
+        plugins = metric_registry.active()[len(metric_registry.BUILTIN) :]
+        extra = [m.column for m in plugins if m.column and m.column not in DISPLAY]
+        columns = [c for c in _displayed(DISPLAY + extra) if c in shown and not (shown[c].astype(str) == "").all()]
+    shown = shown[[c for c in columns if c in shown]].copy()
     for column in shown.columns:
         if shown[column].dtype.kind == "f":
             shown[column] = shown[column].map(lambda v: "-" if pd.isna(v) else f"{v:.2f}")
@@ -189,6 +198,29 @@ def to_markdown(board: pd.DataFrame, columns: list[str] | None = None) -> str:
     rule = "|" + "|".join("---" for _ in shown.columns) + "|"
     lines = ["| " + " | ".join(str(v) for v in row) + " |" for row in shown.itertuples(index=False)]
     return "\n".join([header, rule, *lines])
+
+
+def _displayed(columns: list[str]) -> list[str]:
+    """`columns` with each metric's interval after it (after its "mean ± std" text for RTE and RRE), and after
+    Acc.'s the verdict against the row above."""
+    after = {}
+    for metric in uncertainty.with_interval(metric_registry.active()):
+        after[metric.summary or metric.column] = [uncertainty.ci(metric)]
+    after[ACC] = after.get(ACC, []) + [uncertainty.VERSUS]
+    return [name for column in columns for name in (column, *after.get(column, []))]
+
+
+def _with_intervals(board: pd.DataFrame) -> pd.DataFrame:
+    """The board with a "[low, high]" text column beside each interval's two numbers."""
+    out = board.copy()
+    for metric in uncertainty.with_interval(metric_registry.active()):
+        low, high = uncertainty.low(metric), uncertainty.high(metric)
+        if low in board and high in board:
+            out[uncertainty.ci(metric)] = [
+                "-" if pd.isna(a) or pd.isna(b) else f"[{a:{metric.fmt}}, {b:{metric.fmt}}]"
+                for a, b in zip(board[low], board[high], strict=True)
+            ]
+    return out
 
 
 def write(board: pd.DataFrame, stem: str | Path) -> list[Path]:
