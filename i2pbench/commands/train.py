@@ -7,7 +7,7 @@ import os
 import sys
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from .options import (
     add_conf_option,
@@ -70,43 +70,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="continue training (and overwrite) an existing checkpoint that has no resume file of its own, e.g. to "
         "fine-tune a copy",
     )
-    p.add_argument("--steps", type=positive_int, default=20000, help="optimiser steps")
+    add_config_options(p)
     p.add_argument(
         "--epochs",
         type=positive_float,  # 0 trained one step
         default=None,
         help="train this many passes over the split (sets --steps; each pass a permutation seeded by (seed, epoch))",
     )
-    p.add_argument("--batch-size", type=positive_int, default=1, help="frames per forward pass (per rank)")
-    p.add_argument("--accumulate", type=positive_int, default=1, help="forward passes per optimiser step")
-    p.add_argument("--workers", type=non_negative_int, default=0, help="DataLoader worker processes for data work")
-    p.add_argument("--lr", type=positive_float, default=1e-4, help="peak learning rate (finite, positive)")
-    p.add_argument("--warmup-steps", type=non_negative_int, default=0, help="linear learning-rate warm-up")
-    p.add_argument("--schedule", choices=("constant", "cosine"), default="constant", help="after the warm-up")
-    p.add_argument("--grad-clip", type=positive_float, default=1.0, help="gradient-norm clip (finite, positive)")
-    p.add_argument(
-        "--augment",
-        type=augment_list,
-        default="none",
-        metavar="NAMES",
-        help="per-sample augmentation: none, photometric, lidar-dropout, or a comma list",
-    )
-    p.add_argument("--amp", choices=("off", "bf16"), default="off", help="bf16 autocast of the learned stages")
-    p.add_argument("--deterministic", action="store_true", help="deterministic kernels only (GPU reruns bit-exact)")
-    p.add_argument(
-        "--compile",
-        default="off",
-        metavar="BACKEND",
-        help="torch.compile the stages' fixed-shape blocks with this backend (inductor; aot_eager: no C++ compiler)",
-    )
     p.add_argument("--cache-dir", default="runs/cache/train", help="per-frame extractor/grouping cache ('none': off)")
     p.add_argument("--log", help="JSON-lines log, one record per step (default: <out>.log.jsonl)")
     p.add_argument("--tensorboard", metavar="DIR", help="also log the step and validation scalars for TensorBoard")
-    p.add_argument("--checkpoint-every", type=positive_int, default=250)
-    p.add_argument("--validate-every", type=positive_int, default=1000)
-    p.add_argument("--val-frames", type=positive_int, default=20)
-    p.add_argument("--seed", type=int, default=0, help="initial weights, frame order and transforms")
-    p.add_argument("--device", default="auto", help="auto, cpu, cuda, cuda:N")
     p.add_argument("--threads", type=positive_int, default=None, help="torch, OpenCV and BLAS threads")
     p.add_argument("--quiet", action="store_true")
 
@@ -119,6 +92,57 @@ def augment_list(text: str) -> str:
         return ",".join(augmentation_names(text))
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+# The options that set a TrainConfig field of the same name: (type, or the choices, or bool for a flag; help;
+# metavar). Their defaults are TrainConfig's, so the command line and the library train alike.
+CONFIG_OPTIONS: dict[str, tuple[Any, str, str | None]] = {
+    "steps": (positive_int, "optimiser steps", None),
+    "batch_size": (positive_int, "frames per forward pass (per rank)", None),
+    "accumulate": (positive_int, "forward passes per optimiser step", None),
+    "workers": (non_negative_int, "DataLoader worker processes for data work", None),
+    "lr": (positive_float, "peak learning rate (finite, positive)", None),
+    "warmup_steps": (non_negative_int, "linear learning-rate warm-up", None),
+    "schedule": (("constant", "cosine"), "after the warm-up", None),
+    "grad_clip": (positive_float, "gradient-norm clip (finite, positive)", None),
+    "augment": (augment_list, "per-sample augmentation: none, photometric, lidar-dropout, or a comma list", "NAMES"),
+    "amp": (("off", "bf16"), "bf16 autocast of the learned stages", None),
+    "deterministic": (bool, "deterministic kernels only (GPU reruns bit-exact)", None),
+    "compile": (
+        str,
+        "torch.compile the stages' fixed-shape blocks with this backend (inductor; aot_eager: no C++ compiler)",
+        "BACKEND",
+    ),  # fmt: skip
+    "checkpoint_every": (positive_int, "optimiser steps between checkpoints", None),
+    "validate_every": (positive_int, "optimiser steps between validations", None),
+    "val_frames": (positive_int, "validation frames, spread over the split", None),
+    "seed": (int, "initial weights, frame order and transforms", None),
+    "device": (str, "auto, cpu, cuda, cuda:N", None),
+}
+
+
+def add_config_options(p: argparse.ArgumentParser) -> None:
+    """One option per CONFIG_OPTIONS entry, defaulting to TrainConfig's value."""
+    from ..train_config import TrainConfig
+
+    defaults = TrainConfig()
+    for name, (kind, help, metavar) in CONFIG_OPTIONS.items():
+        flag, default = "--" + name.replace("_", "-"), getattr(defaults, name)
+        if kind is bool:
+            p.add_argument(flag, action="store_true", default=default, help=help)
+        elif isinstance(kind, tuple):
+            p.add_argument(flag, choices=kind, default=default, help=help)
+        else:
+            p.add_argument(flag, type=kind, default=default, metavar=metavar, help=help)
+
+
+def train_config(args: argparse.Namespace, device: str):
+    """The TrainConfig the options give: each CONFIG_OPTIONS field as parsed, and the ones the command derives."""
+    from ..train_config import TrainConfig
+
+    cache_dir = None if args.cache_dir == "none" else args.cache_dir
+    config = {name: getattr(args, name) for name in CONFIG_OPTIONS}
+    return TrainConfig(**{**config, "device": device, "cache_dir": cache_dir, "epochs": args.epochs is not None})
 
 
 def _source_specs(args: argparse.Namespace) -> tuple[list[SourceSpec], SourceSpec | None]:
@@ -228,7 +252,7 @@ def run(args: argparse.Namespace) -> int:
     from ..pipeline import Pipeline
     from ..plugins import default_registry
     from ..runs.environment import fix_threads
-    from ..training import TrainConfig, Trainer, data_identity, steps_for_epochs, training_meta
+    from ..training import Trainer, data_identity, steps_for_epochs, training_meta
     from ..weights import data_label
 
     check_out(Path(args.out), args.force)
@@ -240,27 +264,7 @@ def run(args: argparse.Namespace) -> int:
     torch.manual_seed(args.seed)  # initial weights: two runs with one seed start (and end) alike
     pipeline = Pipeline.build(registry, _combination(registry, args))
     init = _init_2d(pipeline, args.init_2d) if args.init_2d else {}
-    config = TrainConfig(
-        steps=args.steps,
-        batch_size=args.batch_size,
-        accumulate=args.accumulate,
-        lr=args.lr,
-        warmup_steps=args.warmup_steps,
-        schedule=args.schedule,
-        grad_clip=args.grad_clip,
-        checkpoint_every=args.checkpoint_every,
-        validate_every=args.validate_every,
-        val_frames=args.val_frames,
-        seed=args.seed,
-        device=str(device),
-        workers=args.workers,
-        amp=args.amp,
-        cache_dir=None if args.cache_dir == "none" else args.cache_dir,
-        epochs=args.epochs is not None,
-        augment=args.augment,
-        deterministic=args.deterministic,
-        compile=args.compile,
-    )
+    config = train_config(args, str(device))
     if args.epochs is not None:
         world = int(os.environ.get("WORLD_SIZE", 1))
         config = replace(config, steps=steps_for_epochs(args.epochs, len(train_set.frame_ids()), config, world))
