@@ -71,7 +71,7 @@ def add_scale_options(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import leaderboard, progress
     from ..devices import resolve_device_name
-    from ..errors import DataError
+    from ..errors import DataError, I2PBenchError
     from ..plugins import default_registry
     from ..runs.environment import fix_threads
     from ..runs.invocation import Invocation
@@ -99,6 +99,9 @@ def run(args: argparse.Namespace) -> int:
         records = _run_grid(registry, combinations, dataset, frame_ids, protocols, store, invocation.id, args)
     except OSError as exc:  # the store's disk full or gone read-only: frames written so far stay
         raise _store_failed(exc, store, invocation) from None
+    except I2PBenchError as exc:  # a worker lost, a cluster that does not answer: the record says so, not "running"
+        invocation.fail(str(exc))
+        raise
     except KeyboardInterrupt as exc:  # Ctrl-C: workers stopped, finished frames kept, the board of those printed
         from ..interrupts import stopped
 

@@ -14,6 +14,7 @@ so a retry neither duplicates nor loses a result.
 from __future__ import annotations
 
 import logging
+import socket
 import sys
 import time
 from collections import deque
@@ -21,6 +22,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from types import ModuleType
 from typing import Any
+from urllib.parse import urlsplit
 
 from ..errors import I2PBenchError
 from .store import ResultsStore
@@ -38,6 +40,54 @@ def import_ray() -> ModuleType:
             "--executor ray needs Ray: pip install 'i2pbench[ray]' (or pip install 'ray>=2.9')"
         ) from exc
     return ray
+
+
+PROBE_TIMEOUT_S = 10.0  # to connect, and again to hear the handshake; a live cluster answers in milliseconds
+H2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])  # + an empty SETTINGS frame
+SETTINGS = 4  # the HTTP/2 frame type a gRPC server answers the preface with
+DEFAULT_PORTS = {"ray": 10001, "": 6379}  # Ray client's port for ray://, else the GCS's
+START_HINT = "start one with `ray start --head` and pass the address it prints (or ray://HOST:10001)"
+
+
+def check_address(address: str | None, timeout_s: float = PROBE_TIMEOUT_S) -> None:
+    """Refuse an address where no Ray cluster answers, before `ray.init` waits on it without end (it retries a dead
+    or foreign address forever): a TCP connection, then the HTTP/2 handshake every Ray endpoint speaks (the GCS and
+    the Ray client server are gRPC), each within `timeout_s`. None, "local" and "auto" are Ray's to resolve."""
+    if address in (None, "", "local", "auto"):
+        return
+    host, port = _host_port(address)
+    where = f"--address {address}"
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s) as conn:
+            conn.settimeout(timeout_s)
+            conn.sendall(H2_PREFACE)
+            head = _read(conn, 9)
+    except TimeoutError:
+        raise I2PBenchError(f"{where}: no Ray cluster answered within {timeout_s:g} s; {START_HINT}") from None
+    except OSError as exc:
+        raise I2PBenchError(f"{where}: no Ray cluster there ({exc.strerror or exc}); {START_HINT}") from None
+    if len(head) < 9 or head[3] != SETTINGS:
+        raise I2PBenchError(
+            f"{where}: something listens there but does not answer as a Ray cluster (no gRPC handshake); {START_HINT}"
+        )
+
+
+def _host_port(address: str) -> tuple[str, int]:
+    parts = urlsplit(address if "://" in address else f"//{address}")
+    try:
+        port = parts.port or DEFAULT_PORTS.get(parts.scheme)
+    except ValueError:
+        port = None
+    if not parts.hostname or port is None:
+        raise I2PBenchError(f"--address {address}: expected HOST:PORT or ray://HOST:PORT (or auto)")
+    return parts.hostname, port
+
+
+def _read(conn: socket.socket, n: int) -> bytes:
+    data = b""
+    while len(data) < n and (chunk := conn.recv(n - len(data))):
+        data += chunk
+    return data
 
 
 class RayWorker:
@@ -86,6 +136,7 @@ class RayExecutor:
         gpus_per_worker: float = 1.0,
         max_retries: int = 3,
     ) -> None:
+        check_address(address)  # first: needs no Ray, and an address nobody answers at would hang ray.init
         self.ray = import_ray()
         self.address, self.requested, self.threads = address, workers, threads
         self.gpus_per_worker, self.max_retries = gpus_per_worker, max_retries
@@ -103,9 +154,17 @@ class RayExecutor:
         """Join (or start) Ray and put the work, weights included, into the object store once."""
         if not self.ray.is_initialized():
             cpus = self.requested * self.threads if self.address is None and self.requested else None
-            self.ray.init(
-                address=self.address or "local", num_cpus=cpus, include_dashboard=False, logging_level=logging.WARNING
-            )
+            try:
+                self.ray.init(
+                    address=self.address or "local",
+                    num_cpus=cpus,
+                    include_dashboard=False,
+                    logging_level=logging.WARNING,
+                )
+            except (ConnectionError, RuntimeError, ValueError) as exc:  # e.g. auto with no cluster running here
+                raise I2PBenchError(
+                    f"--address {self.address or 'local'}: Ray could not start or join ({exc})"
+                ) from None
             self._owns_ray = True
         gpus = self.ray.cluster_resources().get("GPU", 0) > 0
         self._jobs_gpu = [gpus and bool(job.pipeline.learned_modules()) for job in work.jobs]
