@@ -34,6 +34,7 @@ from .metric_registry import (  # noqa: F401 (the board's column names, read fro
 )
 from .metrics import summarize
 from .protocol import Protocol
+from .scoring import recall
 from .scoring.cards import label, rescored
 
 GROUP = ["dataset", "split", "combination", "weights"]
@@ -100,6 +101,7 @@ def _row(records: pd.DataFrame, protocol: Protocol, metrics: tuple[Metric, ...])
         MODEL_SIZE: round(float(first["model_size_mb"]), 3),
         **_latency(records),
         **cells,  # the metrics plugins register
+        **recall.cells(records, protocol),  # registration recall at several thresholds, error percentiles
         **uncertainty.cells(records, protocol, metrics),
     }
 

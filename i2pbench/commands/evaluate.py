@@ -35,6 +35,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "table (comma-separated names, or all; docs/protocol.md)")  # fmt: skip
     p.add_argument("--rules-only", action="store_true", help="with --rules: score cards whose inputs differ from "
                    "the run's by their rules alone instead of listing them as needing a rerun")  # fmt: skip
+    p.add_argument("--by-sequence", action="store_true", help="also print each row's Acc. and error percentiles "
+                   "per sequence (KITTI sequence or drive; nuScenes camera)")  # fmt: skip
     p.add_argument("--out", help="also write the leaderboard to STEM.csv, STEM.md and STEM.parquet (with --rules: "
                    "the table to STEM.csv and STEM.md)")  # fmt: skip
 
@@ -52,6 +54,12 @@ def run(args: argparse.Namespace) -> int:
         return run_rules(args, thresholds)
     result = evaluate(args.run_dir, args.invocation, **thresholds)
     print(leaderboard.to_markdown(result.board))
+    if args.by_sequence:
+        from ..scoring.cards import rescored
+        from ..scoring.recall import by_sequence
+
+        table = by_sequence(rescored(result.records, result.protocol), result.protocol)
+        print("\n" + leaderboard.to_markdown(table, list(table.columns)))
     p = result.protocol
     grid = "" if result.expected is None else f" of the grid's {result.expected}"
     print(f"\n{len(result.records)} per-frame records{grid}; success: RRE < {p.acc_rre_deg:g}° and RTE < "

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from .. import leaderboard as lb
-from . import curves, framesets, overlay, robustness
+from . import curves, framesets, overlay, robustness, sequences
 from .examples import Example, render_examples
 from .rundir import RunDir, load_run
 
@@ -110,6 +110,7 @@ def render(
             "Dashed: the protocol's thresholds, where each curve meets Acc.",
             _png(curves.accuracy_curves(groups, run.protocol), "Acc. against the RRE and RTE thresholds"),
         ),
+        _section("By sequence", sequences.EXPLAIN, table(sequences.table(run.records, run.protocol, labels))),
         _section(
             "Latency",
             "Median per frame over the frames whose pipeline ran to the end (log axis), and each stage's share.",

@@ -1,0 +1,79 @@
+"""Registration recall at several thresholds, error percentiles, and the same per sequence.
+
+Recall at an RRE threshold is the share of ALL frames with RRE below it and RTE below the protocol's Acc. threshold
+(and the other way round for RTE), so each recall column at the protocol's own thresholds is its Acc. Percentiles
+are over all frames with a failure an infinite error (its quantile is then "inf", never a number a failure lowered)
+and take the frame at that rank (numpy's inverted_cdf: no interpolation, so a percentile is some frame's error).
+A frame's sequence is its KITTI sequence or drive (the frame id's part before the "/"; synthetic streets too); a
+nuScenes frame id ("<sample token>/<camera>") names no scene, so its frames are grouped by camera instead.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from ..protocol import Protocol
+
+RRE_STEPS_DEG = (1.0, 2.0, 5.0, 10.0, 20.0)
+RTE_STEPS_M = (0.25, 0.5, 1.0, 2.0, 5.0)
+PERCENTILES = (25, 50, 75, 90)
+
+
+def recall_column(error: str, threshold: float) -> str:
+    return f"recall RRE<{threshold:g}° (%)" if error == "rre" else f"recall RTE<{threshold:g} m (%)"
+
+
+def percentile_column(error: str, q: int) -> str:
+    return f"RRE p{q} (°)" if error == "rre" else f"RTE p{q} (m)"
+
+
+def _errors(records: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """RTE and RRE with NaN (no error recorded) read as infinite, a failure."""
+    rte, rre = records["rte_m"].to_numpy(float), records["rre_deg"].to_numpy(float)
+    return np.where(np.isnan(rte), np.inf, rte), np.where(np.isnan(rre), np.inf, rre)
+
+
+def percentile(values: np.ndarray, q: int) -> float:
+    return float(np.percentile(values, q, method="inverted_cdf")) if len(values) else np.nan
+
+
+def cells(records: pd.DataFrame, protocol: Protocol) -> dict[str, float]:
+    """A leaderboard row's recall and percentile columns."""
+    rte, rre = _errors(records)
+    n = max(len(rte), 1)
+    out = {}
+    for t in RRE_STEPS_DEG:
+        out[recall_column("rre", t)] = round(100.0 * float(((rre < t) & (rte < protocol.acc_rte_m)).sum()) / n, 2)
+    for t in RTE_STEPS_M:
+        out[recall_column("rte", t)] = round(100.0 * float(((rte < t) & (rre < protocol.acc_rre_deg)).sum()) / n, 2)
+    for q in PERCENTILES:
+        out[percentile_column("rte", q)] = percentile(rte, q)
+        out[percentile_column("rre", q)] = percentile(rre, q)
+    return out
+
+
+def sequence(dataset: str, frame_id: str) -> str:
+    head, _, tail = str(frame_id).partition("/")
+    return f"camera {tail}" if dataset.startswith("nuscenes") else head
+
+
+SEQUENCE_COLUMNS = ["frames", "Acc. (%) ↑", "RTE p50 (m)", "RTE p90 (m)", "RRE p50 (°)", "RRE p90 (°)"]
+
+
+def by_sequence(records: pd.DataFrame, protocol: Protocol, label=None) -> pd.DataFrame:
+    """Per leaderboard row (combination, weights; `label(combination, weights)` names it) and sequence: frames, Acc.
+    and the RTE and RRE medians and 90th percentiles; each row's "all" line first. Clean records only."""
+    if "corruption" in records:
+        records = records[records["corruption"].fillna("") == ""]
+    rows = []
+    for (combination, weights), group in records.groupby(["combination", "weights"], sort=False):
+        name = label(combination, weights) if label else f"{combination} ({weights})"
+        seqs = group.assign(_seq=[sequence(d, f) for d, f in zip(group["dataset"], group["frame_id"], strict=True)])
+        parts = [("all", seqs), *seqs.groupby("_seq", sort=True)]
+        for seq, part in parts:
+            rte, rre = _errors(part)
+            acc = 100.0 * float(((rte < protocol.acc_rte_m) & (rre < protocol.acc_rre_deg)).mean())
+            values = [len(part), round(acc, 2), *(percentile(e, q) for e in (rte, rre) for q in (50, 90))]
+            rows.append({"row": name, "sequence": seq, **dict(zip(SEQUENCE_COLUMNS, values, strict=True))})
+    return pd.DataFrame(rows, columns=["row", "sequence", *SEQUENCE_COLUMNS])

@@ -1,0 +1,66 @@
+"""Registration recall at thresholds, error percentiles and the per-sequence breakdown, on hand-built records.
+
+Five frames of one row (protocol thresholds 5° and 2 m): sequence 00 has (RTE 0.3 m, RRE 0.8°), (1.5, 4.0) and a
+failure (inf, inf); sequence 01 has (0.6, 12.0) and (3.0, 1.5).
+"""
+
+from __future__ import annotations
+
+import math
+
+import pandas as pd
+
+from i2pbench.cli import main
+from i2pbench.protocol import Protocol
+from i2pbench.report.html import write_report
+from i2pbench.scoring.recall import by_sequence, cells, sequence
+
+INF = math.inf
+RECORDS = pd.DataFrame({
+    "dataset": "kitti", "combination": "a", "weights": "none", "corruption": "",
+    "frame_id": ["00/000001", "00/000002", "00/000003", "01/000001", "01/000002"],
+    "rte_m": [0.3, 1.5, INF, 0.6, 3.0],
+    "rre_deg": [0.8, 4.0, INF, 12.0, 1.5],
+})  # fmt: skip
+
+
+def test_recall_counts_every_frame_and_meets_acc_at_the_protocols_thresholds():
+    row = cells(RECORDS, Protocol())
+    # RRE steps at RTE < 2 m: 1° and 2° only the first frame; 5° and 10° add (1.5, 4.0); 20° adds (0.6, 12.0)
+    assert [row[f"recall RRE<{t}° (%)"] for t in ("1", "2", "5", "10", "20")] == [20.0, 20.0, 40.0, 40.0, 60.0]
+    # RTE steps at RRE < 5°: (0.6, 12.0) never counts; 5 m adds (3.0, 1.5)
+    assert [row[f"recall RTE<{t} m (%)"] for t in ("0.25", "0.5", "1", "2", "5")] == [0.0, 20.0, 20.0, 40.0, 60.0]
+
+
+def test_percentiles_take_a_frames_error_and_a_failure_is_infinite():
+    row = cells(RECORDS, Protocol())
+    # sorted RTE 0.3, 0.6, 1.5, 3.0, inf: the first whose share of frames reaches 25, 50, 75, 90 %
+    assert [row[f"RTE p{q} (m)"] for q in (25, 50, 75, 90)] == [0.6, 1.5, 3.0, INF]
+    assert [row[f"RRE p{q} (°)"] for q in (25, 50, 75, 90)] == [1.5, 4.0, 12.0, INF]
+
+
+def test_by_sequence_splits_each_row_by_the_frame_ids_folder():
+    table = by_sequence(RECORDS, Protocol()).set_index("sequence")
+    assert table.loc["all"].tolist() == ["a (none)", 5, 40.0, 1.5, INF, 4.0, INF]
+    assert table.loc["00"].tolist() == ["a (none)", 3, 66.67, 1.5, INF, 4.0, INF]
+    assert table.loc["01"].tolist() == ["a (none)", 2, 0.0, 0.6, 3.0, 1.5, 12.0]
+
+
+def test_nuscenes_frames_are_grouped_by_camera():
+    assert sequence("nuscenes", "0a1b2c/CAM_FRONT") == "camera CAM_FRONT"
+    assert sequence("kitti-drives", "2011_09_26_drive_0005/0000000010") == "2011_09_26_drive_0005"
+
+
+def test_the_board_and_the_report_carry_them(shared_data, tmp_path):
+    runs = tmp_path / "runs"
+    argv = ["run", "--extractor", "canny", "--extractor3d", "depth", "--matcher", "oracle", "--solver",
+            "epnp-ransac", "--dataset", "kitti", "--split", "all", "--data-root", str(shared_data / "kitti_odometry"),
+            "--frames", "3", "--runs-dir", str(runs), "--quiet", "--out", str(tmp_path / "board")]  # fmt: skip
+    assert main(argv) == 0
+    board = pd.read_parquet(tmp_path / "board.parquet")
+    assert board["recall RRE<5° (%)"].tolist() == board["Acc. (%) ↑"].tolist()
+    assert board["recall RTE<2 m (%)"].tolist() == board["Acc. (%) ↑"].tolist()
+    assert "RRE p90 (°)" in board
+    write_report(runs / "kitti-all", tmp_path / "report.html", overlays=0)
+    page = (tmp_path / "report.html").read_text()
+    assert "<h2>By sequence</h2>" in page and "<td class=text" in page
