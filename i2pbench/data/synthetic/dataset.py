@@ -158,7 +158,7 @@ class SyntheticStreets(Dataset):
 
     @property
     def n_frames(self) -> int:
-        frames = {**self.default_conf["frames"], **(self.conf["frames"] or {})}
+        frames = self.conf["frames"] or self.default_conf["frames"]  # merged over the defaults key by key
         return int(frames[self.split])
 
     def sequence_dir(self) -> Path:
