@@ -1,14 +1,9 @@
 """Batched training: how the learned stages of a combination take several frames at once.
 
-A learned stage that trains in batches implements, besides its per-frame `__call__`:
-- `prepare(frame, <its keypoints>, cache=None) -> dict[str, Tensor]`: one frame's network inputs, computed on the
-  CPU (in a DataLoader worker). `cache` is a per-frame dict kept on disk across steps and runs, for what does not
-  depend on the protocol's transform (e.g. point grouping); the stage fills it, the caller persists it.
-- a torch `forward` on those inputs collated into a padded batch (a leading B), with keypoint masks where the
-  stage needs them: encoders `forward(inputs) -> [B x M x D]`, exchangers `forward(inputs, d2, d3, mask2d, mask3d)`,
-  trainable matchers `batch_loss(inputs, Features, mask2d, mask3d) -> (loss, terms)`, the mean over the frames.
-A stage without `prepare` still trains: it runs frame by frame inside the batch (slower, same result), each call
-through `i2pbench.calling.call_stage` as in a run (declared view, contract check), with autograd on.
+A stage that subclasses `i2pbench.learned.BatchedStage` (its contract: `prepare` one frame, `forward` a padded
+batch, `batch_loss` for a trainable matcher) is prepared per frame here and run on the collated batch. A stage
+without it still trains: it runs frame by frame inside the batch (slower, same result), each call through
+`i2pbench.calling.call_stage` as in a run (declared view, contract check), with autograd on.
 """
 
 from __future__ import annotations
@@ -21,6 +16,7 @@ import torch.nn.functional as F
 
 from .calling import StageInputs, call_stage
 from .components import Component
+from .learned import BatchedStage
 from .types import Features, Frame, Keypoints2D, Keypoints3D
 
 LEARNED_KINDS = ("encoder2d", "encoder3d", "exchanger", "matcher")
@@ -65,10 +61,6 @@ def to_device(batch: Any, device: torch.device, non_blocking: bool = False) -> A
     return batch
 
 
-def batches_natively(stage: Component) -> bool:
-    return callable(getattr(stage, "prepare", None))
-
-
 def prepare_stage(
     kind: str, stage: Component, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, cache: dict | None
 ) -> dict[str, Any]:
@@ -76,24 +68,9 @@ def prepare_stage(
     matcher, whose loss is the supervision, sees the ground truth."""
     if kind != "matcher":
         frame = frame.without_ground_truth()
-    if not batches_natively(stage):
+    if not isinstance(stage, BatchedStage):
         return {PER_FRAME: (frame, kp2d, kp3d)}
-    if kind == "encoder2d":
-        return stage.prepare(frame, kp2d, cache=cache)
-    if kind == "encoder3d":
-        return stage.prepare(frame, kp3d, cache=cache)
-    return stage.prepare(frame, kp2d, kp3d, cache=cache)
-
-
-def exchange_one_frame(
-    stage: torch.nn.Module, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features
-) -> Features:
-    """A batched exchanger's per-frame `__call__`: its `prepare`d inputs and both descriptor sets as a batch of one
-    through its `forward`, so inference and training run the same code."""
-    device = next(stage.parameters()).device
-    inputs = {k: v[None] for k, v in stage.prepare(frame, kp2d, kp3d, device).items()}
-    d2, d3 = torch.nn.Module.__call__(stage, inputs, features.desc2d.to(device)[None], features.desc3d.to(device)[None])
-    return Features(desc2d=d2[0].float(), desc3d=d3[0].float())
+    return stage.prepare(frame, *stage.keypoints_of(kp2d, kp3d), cache=cache)
 
 
 class BatchForward:
@@ -107,12 +84,12 @@ class BatchForward:
         d2 = self._encode("encoder2d", inputs)
         d3 = self._encode("encoder3d", inputs)
         exchanger = self.stages.get("exchanger")
-        if exchanger is not None and batches_natively(exchanger):
-            d2, d3 = torch.nn.Module.__call__(exchanger, inputs["exchanger"], d2, d3, m2, m3)
+        if isinstance(exchanger, BatchedStage):
+            d2, d3 = exchanger.batched(inputs["exchanger"], d2, d3, m2, m3)
         elif exchanger is not None:
             d2, d3 = _per_frame_exchange(exchanger, inputs["exchanger"][PER_FRAME], d2, d3, m2, m3)
         matcher, features = self.stages["matcher"], Features(d2, d3)
-        if batches_natively(matcher):
+        if isinstance(matcher, BatchedStage):
             return matcher.batch_loss(inputs["matcher"], features, m2, m3)
         return _per_frame_loss(matcher, inputs["matcher"][PER_FRAME], features, m2, m3)
 
@@ -120,8 +97,8 @@ class BatchForward:
         stage = self.stages.get(kind)
         if stage is None:
             return None
-        if batches_natively(stage):
-            return torch.nn.Module.__call__(stage, inputs[kind])
+        if isinstance(stage, BatchedStage):
+            return stage.batched(inputs[kind])
         frames = inputs[kind][PER_FRAME]
         return pad_stack([call_stage(stage, f, StageInputs(kp2d, kp3d)).output for f, kp2d, kp3d in frames])
 

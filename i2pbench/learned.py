@@ -1,5 +1,8 @@
-"""The base of stages with parameters. It subclasses torch.nn.Module, so it is kept out of i2pbench.components:
-importing the stage bases (to list plugins, or to run the classic stages) must not import torch."""
+"""The base of stages with parameters, and the contract of those that run on padded batches of frames.
+
+Both subclass torch.nn.Module, so they are kept out of i2pbench.components: importing the stage bases (to list
+plugins, or to run the classic stages) must not import torch.
+"""
 
 from __future__ import annotations
 
@@ -9,10 +12,16 @@ from typing import Any, ClassVar
 import torch
 
 from .components import Component
+from .errors import StageError
+from .types import Features, Frame, Keypoints2D, Keypoints3D
 
 
 class LearnedComponent(Component, torch.nn.Module):
-    """A component with parameters; its weights live in a checkpoint shared by the pipeline's learned stages."""
+    """A component with parameters; its weights live in a checkpoint shared by the pipeline's learned stages.
+
+    Its `__call__` is the stage's per-frame call (what the pipeline runs), so torch's module call, which runs
+    `forward` with its hooks, is reached as `self.batched(...)`.
+    """
 
     learned = True
     # config keys that only steer inference (score thresholds, filters): a checkpoint fits whatever their values, so
@@ -29,6 +38,95 @@ class LearnedComponent(Component, torch.nn.Module):
         """The fixed-shape submodules worth `torch.compile` (`train --compile`): none by default, since a stage's
         data-dependent loops (point sampling, say) would be unrolled or recompiled per input, not sped up."""
         return []
+
+    @property
+    def device(self) -> torch.device:
+        """where the parameters are (the CPU for a stage without any)."""
+        return next(self.parameters(), torch.empty(0)).device
+
+    def batched(self, *args: Any) -> Any:
+        """`forward(*args)` through torch's module call (forward hooks, compiled submodules): what `module(...)` is
+        for a plain torch module, which a stage's per-frame `__call__` replaces."""
+        return torch.nn.Module.__call__(self, *args)
+
+
+class BatchedStage(LearnedComponent):
+    """A learned stage that runs a padded batch of frames: how training takes several frames at once, and, a batch of
+    one, how the stage runs a single frame, so both run the same code.
+
+    A stage declares three things (a matcher that trains, a fourth):
+    - `prepare(frame, *keypoints, device="cpu", cache=None) -> {name: tensor}`: one frame's network inputs, computed
+      on the CPU (in a DataLoader worker while training). The keypoints are those of its kind (`keypoints_of`):
+      `kp2d` for an encoder2d, `kp3d` for an encoder3d, `kp2d, kp3d` for an exchanger or a matcher. `cache` is a
+      per-frame dict kept across steps and runs for what does not depend on the protocol's transform (point
+      grouping, say): the stage fills it, the caller persists it. A matcher's `prepare` gives its supervision and
+      sees the ground truth (training only);
+    - `forward` on those inputs collated into a padded batch (`batching.collate`: a leading B, tensors padded at the
+      end), with keypoint masks [B x M] (True: a real keypoint) where padding matters:
+      encoder: `forward(inputs) -> [B x M x D]`;
+      exchanger: `forward(inputs, d2 [B x M2 x D], d3 [B x M3 x D], mask2d, mask3d) -> (d2, d3)`;
+      matcher: `forward(...)` on descriptors, as the matcher chooses;
+    - the per-frame stage call, derived here from the two for encoders (prepare, a batch of one, forward) and
+      exchangers (the same, after the checks every exchanger makes); a matcher writes its own `__call__`, which
+      turns its forward's scores into `Matches`, and reaches `forward` through `self.batched`;
+    - a trainable matcher: `batch_loss(inputs, features, mask2d, mask3d) -> (loss, {term: float})`, the mean over
+      the batch's frames of its loss on `prepare`d supervision and batched descriptors; `loss` on one frame is
+      derived from it.
+    A learned stage without this contract still trains: batching.py runs it frame by frame inside the batch.
+    """
+
+    def prepare(
+        self,
+        frame: Frame,
+        *keypoints: Keypoints2D | Keypoints3D,
+        device: torch.device | str = "cpu",
+        cache: dict | None = None,
+    ) -> dict[str, torch.Tensor]:
+        raise NotImplementedError
+
+    def batch_loss(
+        self, inputs: Mapping[str, torch.Tensor], features: Features, mask2d: torch.Tensor, mask3d: torch.Tensor
+    ) -> tuple[torch.Tensor, dict[str, float]]:
+        raise NotImplementedError(f"{self.label} does not train")
+
+    def keypoints_of(self, kp2d: Keypoints2D, kp3d: Keypoints3D) -> tuple[Keypoints2D | Keypoints3D, ...]:
+        """the keypoints this stage's kind takes, in `prepare`'s order."""
+        return {"encoder2d": (kp2d,), "encoder3d": (kp3d,)}.get(self.kind, (kp2d, kp3d))
+
+    def one(self, frame: Frame, *keypoints: Keypoints2D | Keypoints3D) -> dict[str, torch.Tensor]:
+        """one frame's inputs as a batch of one, on the stage's device."""
+        return {k: v[None] for k, v in self.prepare(frame, *keypoints, device=self.device).items()}
+
+    def __call__(self, frame: Frame, *args: Any) -> Any:
+        if self.kind in ("encoder2d", "encoder3d"):
+            return self.batched(self.one(frame, *args))[0].float()
+        if self.kind == "exchanger":
+            return self._exchange(frame, *args)
+        raise NotImplementedError(f"{self.label}: a {self.kind} writes its own per-frame call")
+
+    def _exchange(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Features:
+        if features.desc2d is None or features.desc3d is None:
+            raise StageError(self.label, "needs descriptors on both sides (an encoder2d and an encoder3d)")
+        width = self.conf.get("descriptor_dim")
+        for desc in (features.desc2d, features.desc3d):
+            if width is not None and desc.shape[1] != width:
+                raise StageError(self.label, f"expects {width}-wide descriptors, got {desc.shape[1]}")
+        if len(kp2d) == 0 or len(kp3d) == 0:  # nothing to attend to; the matcher will find no match
+            return features
+        device = self.device
+        d2, d3 = self.batched(
+            self.one(frame, kp2d, kp3d), features.desc2d.to(device)[None], features.desc3d.to(device)[None]
+        )
+        return Features(desc2d=d2[0].float(), desc3d=d3[0].float())
+
+    def loss(
+        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features
+    ) -> tuple[torch.Tensor, dict[str, float]]:
+        """`batch_loss` on this frame alone (a batch of one); frame must carry T_gt."""
+        device = self.device
+        one = [None if d is None else d.to(device)[None] for d in (features.desc2d, features.desc3d)]
+        masks = [torch.ones(1, n, dtype=torch.bool, device=device) for n in (len(kp2d), len(kp3d))]
+        return self.batch_loss(self.one(frame, kp2d, kp3d), Features(*one), *masks)
 
 
 def width_mismatch(component: Component, upstream: Mapping[str, Component], keys: Sequence[str]) -> str | None:

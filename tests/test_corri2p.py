@@ -257,7 +257,7 @@ def test_matches_carry_the_cosine_similarity_of_high_score_keypoints():
     matcher = stages["matcher"]
     with torch.no_grad():
         features = features_of(stages, frame, kp2d, kp3d)
-        z2, z3, f2, f3 = torch.nn.Module.__call__(matcher, features.desc2d, features.desc3d)
+        z2, z3, f2, f3 = matcher.batched(features.desc2d, features.desc3d)
     threshold = min(float(z2.sigmoid().median()), float(z3.sigmoid().median()))  # at least half of each side pass
     matcher.conf.update(score_threshold=threshold)
     matches = matcher(frame.without_ground_truth(), kp2d, kp3d, features)
@@ -338,7 +338,7 @@ def true_mutual_fraction(stages, frame, kp2d, kp3d) -> float:
     prepared = matcher.prepare(frame, kp2d, kp3d)
     with torch.no_grad():
         features = features_of(stages, frame, kp2d, kp3d)
-        _, _, f2, f3 = torch.nn.Module.__call__(matcher, features.desc2d, features.desc3d)
+        _, _, f2, f3 = matcher.batched(features.desc2d, features.desc3d)
     rows, cols = mutual_nearest(f2[prepared["anchor2d"]] @ f3[prepared["anchor3d"]].T)
     return prepared["positive"][rows, cols].sum().item() / len(prepared["anchor2d"])
 

@@ -174,7 +174,7 @@ def descriptors_of_both(encoder: PointNet2Encoder, frames: list[Frame], kps: lis
     cache: dict = {}
     with torch.no_grad():
         return [
-            torch.nn.Module.__call__(encoder, {k: v[None] for k, v in encoder.prepare(f, k, cache=cache).items()})[0]
+            encoder.batched({k: v[None] for k, v in encoder.prepare(f, k, cache=cache).items()})[0]
             for f, k in zip(frames, kps, strict=True)
         ]
 

@@ -6,6 +6,7 @@ from test_edgeregnet_training import TINY, one_thread, tiny_frame, tiny_modules 
 
 from i2pbench.api import Keypoints2D, Keypoints3D
 from i2pbench.batching import BatchForward, collate, length_mask, pad_stack, prepare_stage
+from i2pbench.learned import BatchedStage
 from i2pbench.training_data import collate_samples
 
 KINDS = ("encoder2d", "encoder3d", "exchanger", "matcher")
@@ -92,9 +93,9 @@ def test_padded_keypoints_change_nothing():
         batch = collate_samples(items)
         inputs, (m2, m3) = batch["inputs"], batch["masks"]
         with torch.no_grad():
-            d2 = torch.nn.Module.__call__(stages["encoder2d"], inputs["encoder2d"])
-            d3 = torch.nn.Module.__call__(stages["encoder3d"], inputs["encoder3d"])
-            d2, d3 = torch.nn.Module.__call__(stages["exchanger"], inputs["exchanger"], d2, d3, m2, m3)
+            d2 = stages["encoder2d"].batched(inputs["encoder2d"])
+            d3 = stages["encoder3d"].batched(inputs["encoder3d"])
+            d2, d3 = stages["exchanger"].batched(inputs["exchanger"], d2, d3, m2, m3)
         features.append((d2[0, : small["n2d"]], d3[0, : small["n3d"]]))
     assert not bool(collate_samples([small, large])["masks"][0][0].all())  # the small frame really was padded
     for alone, padded in zip(*features, strict=True):
@@ -138,15 +139,18 @@ def test_bf16_autocast_runs_on_the_cpu_and_keeps_the_loss_close_to_float32():
 def test_only_the_matcher_s_prepare_sees_the_ground_truth():
     seen = {}
 
-    class Spy:
-        def __init__(self, kind):
-            self.kind = kind
-
-        def prepare(self, frame, *args, cache=None):
-            seen[self.kind] = frame.T_gt is not None
+    class Spy(BatchedStage):
+        def prepare(self, frame, *keypoints, device="cpu", cache=None):
+            seen[self.kind] = (frame.T_gt is not None, tuple(type(k).__name__ for k in keypoints))
             return {}
 
     frame, kp2d, kp3d = tiny_frame()
     for kind in KINDS:
-        prepare_stage(kind, Spy(kind), frame, kp2d, kp3d, None)
-    assert seen == {"encoder2d": False, "encoder3d": False, "exchanger": False, "matcher": True}
+        prepare_stage(kind, type(kind, (Spy,), {"kind": kind})(), frame, kp2d, kp3d, None)
+    both = ("Keypoints2D", "Keypoints3D")
+    assert seen == {
+        "encoder2d": (False, ("Keypoints2D",)),
+        "encoder3d": (False, ("Keypoints3D",)),
+        "exchanger": (False, both),
+        "matcher": (True, both),
+    }

@@ -30,12 +30,12 @@ def test_compiling_the_attention_blocks_keeps_outputs_and_parameter_names():
     d2, d3 = torch.randn(2, 40, 32), torch.randn(2, 30, 32)
     mask2d, mask3d = torch.arange(40)[None] < torch.tensor([[40], [25]]), torch.ones(2, 30, dtype=torch.bool)
     with torch.no_grad():
-        eager = torch.nn.Module.__call__(exchanger, inputs, d2, d3, mask2d, mask3d)
+        eager = exchanger.batched(inputs, d2, d3, mask2d, mask3d)
         keys = list(exchanger.state_dict())
         compiled = compile_stages(
             {"exchanger": exchanger, "encoder3d": PointNet2Encoder(TINY["encoder3d"])}, "aot_eager"
         )
-        again = torch.nn.Module.__call__(exchanger, inputs, d2, d3, mask2d, mask3d)
+        again = exchanger.batched(inputs, d2, d3, mask2d, mask3d)
     assert compiled == ["exchanger.ExchangeBlock"] * TINY["exchanger"]["num_blocks"]  # PointNet++: data-dependent
     assert list(exchanger.state_dict()) == keys  # checkpoints stay loadable either way
     for before, after in zip(eager, again, strict=True):

@@ -14,11 +14,10 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from ..components import Encoder3D
 from ..errors import StageError
-from ..learned import LearnedComponent
+from ..learned import BatchedStage
 from ..types import Frame, Keypoints3D
 from .frame_norm import FrameMLP
 from .pointnet2 import SetAbstraction, frame_seed, gather, group, interpolate, normalize_points, shared_mlp
@@ -27,7 +26,7 @@ REVISION = 0  # bump when an output of this module changes for the same inputs (
 NEAREST_NODES = 3  # first-level nodes each keypoint reads (the 3-NN of the feature propagation)
 
 
-class GlobalPointNet2Encoder(LearnedComponent, Encoder3D):
+class GlobalPointNet2Encoder(BatchedStage, Encoder3D):
     """Per-keypoint [local | global] descriptors from a two-level PointNet++ on the (sub-sampled) cloud."""
 
     default_conf: dict[str, Any] = {
@@ -94,10 +93,8 @@ class GlobalPointNet2Encoder(LearnedComponent, Encoder3D):
 
     def __call__(self, frame: Frame, kp3d: Keypoints3D) -> torch.Tensor:
         if len(kp3d) == 0:
-            return torch.zeros(0, self.conf["descriptor_dim"], device=next(self.parameters()).device)
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp3d, device).items()}
-        return nn.Module.__call__(self, inputs)[0].float()
+            return torch.zeros(0, self.conf["descriptor_dim"], device=self.device)
+        return super().__call__(frame, kp3d)
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
         """a batch of `prepare`d frames (xyz [B x N x 3], reflectance [B x N x 1], key_xyz [B x M x 3],

@@ -31,17 +31,14 @@ import torch.nn.functional as F
 from torch import nn
 
 from i2pbench.api import (
+    BatchedStage,
     Component,
     Exchanger,
-    Features,
     Frame,
     Keypoints2D,
     Keypoints3D,
-    LearnedComponent,
-    StageError,
     width_mismatch,
 )
-from i2pbench.batching import exchange_one_frame
 from i2pbench.layers.attention import key_mask
 from i2pbench.layers.frame_norm import FrameMLP
 from i2pbench.layers.nodes import expand, masked_mean, pool_nodes
@@ -82,7 +79,7 @@ class NodeAttention(nn.Module):
         return self.out(message.transpose(1, 2).flatten(2))
 
 
-class CorrI2PExchanger(LearnedComponent, Exchanger):
+class CorrI2PExchanger(BatchedStage, Exchanger):
     """Pixels attend over point nodes, points over image cells; both descriptor sets updated, shapes kept."""
 
     name = "corri2p-exchange"
@@ -123,18 +120,6 @@ class CorrI2PExchanger(LearnedComponent, Exchanger):
         nodes = point_nodes(kp3d.xyz, self.conf["point_nodes"])
         arrays = {"cell2d": cells, "node3d": nodes, "num_cells": np.int64(count)}
         return {k: torch.from_numpy(np.asarray(v)).to(device) for k, v in arrays.items()}
-
-    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Features:
-        if features.desc2d is None or features.desc3d is None:
-            raise StageError(self.label, "needs descriptors on both sides (an encoder2d and an encoder3d)")
-        for desc in (features.desc2d, features.desc3d):
-            if desc.shape[1] != self.conf["descriptor_dim"]:
-                raise StageError(
-                    self.label, f"expects {self.conf['descriptor_dim']}-wide descriptors, got {desc.shape[1]}"
-                )
-        if len(kp2d) == 0 or len(kp3d) == 0:  # nothing to attend to; the matcher will find no match
-            return features
-        return exchange_one_frame(self, frame, kp2d, kp3d, features)
 
     def forward(
         self,

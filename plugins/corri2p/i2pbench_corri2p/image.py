@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from i2pbench.api import Encoder2D, Frame, Keypoints2D, LearnedComponent
+from i2pbench.api import BatchedStage, Encoder2D, Frame, Keypoints2D
 from i2pbench.layers.resnet import BasicBlock, coarse_mask, norm, stage
 from i2pbench.layers.sampling import normalize_images, sample_descriptors
 
@@ -44,7 +44,7 @@ class UpBlock(nn.Module):
         return self.blocks(torch.cat([x, skip], 1))
 
 
-class CorrI2PImageEncoder(LearnedComponent, Encoder2D):
+class CorrI2PImageEncoder(BatchedStage, Encoder2D):
     """Per-keypoint [local | global] descriptors from a ResNet encoder-decoder on the resized RGB image."""
 
     name = "corri2p-resnet"
@@ -106,11 +106,6 @@ class CorrI2PImageEncoder(LearnedComponent, Encoder2D):
             "size": torch.tensor([h, w], device=device),
             "uv": torch.from_numpy(np.ascontiguousarray(uv)).to(device),
         }
-
-    def __call__(self, frame: Frame, kp2d: Keypoints2D) -> torch.Tensor:
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, device).items()}
-        return nn.Module.__call__(self, inputs)[0].float()
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
         """a batch of `prepare`d frames: image [B x 3 x h x w] (zero-padded to the largest), size [B x 2], uv

@@ -28,15 +28,14 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from i2pbench.api import (
+    BatchedStage,
     Component,
     Features,
     Frame,
     Keypoints2D,
     Keypoints3D,
-    LearnedComponent,
     Matcher,
     Matches,
     StageError,
@@ -75,7 +74,7 @@ def candidates(scores: torch.Tensor, threshold: float, cap: int | None) -> torch
     return keep
 
 
-class CorrI2PMatcher(LearnedComponent, Matcher):
+class CorrI2PMatcher(BatchedStage, Matcher):
     """Overlap scores on both sides, then pairs of high-score pixels and points by descriptor similarity."""
 
     name = "corri2p-overlap"
@@ -119,8 +118,8 @@ class CorrI2PMatcher(LearnedComponent, Matcher):
     def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Matches:
         if features.desc2d is None or features.desc3d is None:
             raise StageError(self.label, "needs descriptors on both sides (an encoder2d and an encoder3d)")
-        device = next(self.parameters()).device
-        z2, z3, f2, f3 = nn.Module.__call__(self, features.desc2d.to(device), features.desc3d.to(device))
+        device = self.device
+        z2, z3, f2, f3 = self.batched(features.desc2d.to(device), features.desc3d.to(device))
         threshold, cap = self.conf["score_threshold"], self.conf["max_candidates"]
         keep2, keep3 = candidates(z2.sigmoid(), threshold, cap), candidates(z3.sigmoid(), threshold, cap)
         sim = f2[keep2] @ f3[keep3].T
@@ -158,7 +157,7 @@ class CorrI2PMatcher(LearnedComponent, Matcher):
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """circle + overlap_weight x overlap, the mean over a batch of `prepare`d frames; descriptors
         [B x M2 x D], [B x M3 x D], keypoint masks [B x M2], [B x M3]."""
-        z2, z3, f2, f3 = nn.Module.__call__(self, features.desc2d, features.desc3d, mask2d, mask3d)
+        z2, z3, f2, f3 = self.batched(features.desc2d, features.desc3d, mask2d, mask3d)
         overlap = balanced_bce(z2, inputs["overlap2d"], mask2d) + balanced_bce(z3, inputs["overlap3d"], mask3d)
         a2, a3 = inputs["anchor2d"], inputs["anchor3d"]
         dist = 1 - gather_rows(f2, a2) @ gather_rows(f3, a3).transpose(1, 2)  # [B x A2 x A3]
@@ -172,16 +171,6 @@ class CorrI2PMatcher(LearnedComponent, Matcher):
         terms = {"circle": float(circle.detach().mean()), "overlap": float(overlap.detach().mean())}
         terms["pairs"] = float(inputs["num_pairs"].float().mean())
         return total, terms
-
-    def loss(
-        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features
-    ) -> tuple[torch.Tensor, dict[str, float]]:
-        """the loss on this frame alone (a batch of one); frame must carry T_gt."""
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, kp3d, device).items()}
-        batched = Features(features.desc2d.to(device)[None], features.desc3d.to(device)[None])
-        ones = [torch.ones(1, n, dtype=torch.bool, device=device) for n in (len(kp2d), len(kp3d))]
-        return self.batch_loss(inputs, batched, *ones)
 
 
 def gather_rows(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:

@@ -33,12 +33,12 @@ from i2pbench.api import (
     KEYPOINTS2D,
     KEYPOINTS3D,
     MATCHES,
+    BatchedStage,
     Component,
     Features,
     Frame,
     Keypoints2D,
     Keypoints3D,
-    LearnedComponent,
     Matcher,
     Matches,
     StageError,
@@ -89,7 +89,7 @@ def keypoint_of_cell(uv: np.ndarray, size: tuple[int, int], cell_px: int) -> np.
     return table
 
 
-class DeepI2PClassifier(LearnedComponent, Matcher):
+class DeepI2PClassifier(BatchedStage, Matcher):
     """Frustum and cell classification per 3D keypoint; matches to the predicted cells, frustum scores for all."""
 
     name = "deepi2p-classifier"
@@ -137,9 +137,9 @@ class DeepI2PClassifier(LearnedComponent, Matcher):
             raise StageError(self.label, "needs 3D descriptors (an encoder3d)")
         if len(kp3d) == 0:
             return dataclasses.replace(Matches.empty(), frustum=np.zeros(0, np.float32))
-        device = next(self.parameters()).device
+        device = self.device
         cell_xy = torch.from_numpy(normalised_pixels(kp2d.uv, frame.image_size)).to(device)
-        logits, cells = nn.Module.__call__(self, features.desc3d.to(device)[None], cell_xy[None])
+        logits, cells = self.batched(features.desc3d.to(device)[None], cell_xy[None])
         frustum = logits[0].sigmoid()
         scores = frustum.cpu().numpy().astype(np.float32)
         if len(kp2d) == 0:  # nowhere to match a point to; the frustum scores stand
@@ -173,7 +173,7 @@ class DeepI2PClassifier(LearnedComponent, Matcher):
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """frustum_weight x frustum BCE + cell cross-entropy, each a per-frame mean, averaged over a batch of
         `prepare`d frames; descriptors [B x M3 x D], keypoint masks [B x M2], [B x M3]."""
-        logits, cells = nn.Module.__call__(self, features.desc3d, inputs["cell_xy"])
+        logits, cells = self.batched(features.desc3d, inputs["cell_xy"])
         inside, target = inputs["inside"], inputs["cell"]
         bce = F.binary_cross_entropy_with_logits(logits, inside.to(logits.dtype), reduction="none")
         frustum = per_frame_mean(bce, mask3d)
@@ -188,16 +188,6 @@ class DeepI2PClassifier(LearnedComponent, Matcher):
         terms = {"frustum": float(frustum.detach().mean()), "cell": float(cell.detach().mean())}
         terms["inside"] = float(per_frame_mean(inside.float(), mask3d).mean())
         return total, terms
-
-    def loss(
-        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features
-    ) -> tuple[torch.Tensor, dict[str, float]]:
-        """the loss on this frame alone (a batch of one); frame must carry T_gt."""
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, kp3d, device).items()}
-        batched = Features(None, features.desc3d.to(device)[None])
-        ones = [torch.ones(1, n, dtype=torch.bool, device=device) for n in (len(kp2d), len(kp3d))]
-        return self.batch_loss(inputs, batched, *ones)
 
 
 def per_frame_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

@@ -31,17 +31,14 @@ import torch
 from scipy.spatial import cKDTree
 
 from i2pbench.api import (
+    BatchedStage,
     Component,
     Exchanger,
-    Features,
     Frame,
     Keypoints2D,
     Keypoints3D,
-    LearnedComponent,
-    StageError,
     width_mismatch,
 )
-from i2pbench.batching import exchange_one_frame
 from i2pbench.layers.mlp import linear_mlp
 from i2pbench.layers.nodes import expand, masked_mean, pool_nodes
 from i2pbench.layers.pointnet2 import farthest_point_sampling, gather
@@ -64,7 +61,7 @@ def node_graph(xyz: np.ndarray, count: int, k: int) -> dict[str, np.ndarray]:
     return {"node": neighbours[:, 0], "neighbours": neighbours, "weights": weights / weights.sum(1, keepdims=True)}
 
 
-class DeepI2PFusion(LearnedComponent, Exchanger):
+class DeepI2PFusion(BatchedStage, Exchanger):
     """Image features fused into the 3D keypoints through attention-weighted point nodes; image side unchanged."""
 
     name = "deepi2p-fusion"
@@ -107,18 +104,6 @@ class DeepI2PFusion(LearnedComponent, Exchanger):
         arrays = {"cell_xy": normalised_pixels(kp2d.uv, frame.image_size), **graph}
         arrays["weights"] = arrays["weights"].astype(np.float32)
         return {k: torch.from_numpy(np.ascontiguousarray(v)).to(device) for k, v in arrays.items()}
-
-    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Features:
-        if features.desc2d is None or features.desc3d is None:
-            raise StageError(self.label, "needs descriptors on both sides (an encoder2d and an encoder3d)")
-        for desc in (features.desc2d, features.desc3d):
-            if desc.shape[1] != self.conf["descriptor_dim"]:
-                raise StageError(
-                    self.label, f"expects {self.conf['descriptor_dim']}-wide descriptors, got {desc.shape[1]}"
-                )
-        if len(kp2d) == 0 or len(kp3d) == 0:  # no image to fuse, or no point to fuse it into
-            return features
-        return exchange_one_frame(self, frame, kp2d, kp3d, features)
 
     def forward(
         self,

@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from i2pbench.api import Encoder2D, Frame, Keypoints2D, LearnedComponent
+from i2pbench.api import BatchedStage, Encoder2D, Frame, Keypoints2D
 from i2pbench.layers.resnet import coarse_mask, norm, stage
 from i2pbench.layers.sampling import normalize_images, sample_descriptors
 
@@ -41,7 +41,7 @@ def resized(frame: Frame, kp2d: Keypoints2D, scale: float) -> tuple[np.ndarray, 
     return np.ascontiguousarray(image), (np.asarray(kp2d.uv, np.float32).reshape(-1, 2) + 0.5) * ratio - 0.5
 
 
-class DeepI2PImageEncoder(LearnedComponent, Encoder2D):
+class DeepI2PImageEncoder(BatchedStage, Encoder2D):
     """Per-keypoint [local | global] descriptors from a ResNet's stride-16 and stride-32 maps."""
 
     name = "deepi2p-resnet"
@@ -88,11 +88,6 @@ class DeepI2PImageEncoder(LearnedComponent, Encoder2D):
             "size": torch.tensor(image.shape[:2], device=device),
             "uv": torch.from_numpy(np.ascontiguousarray(uv)).to(device),
         }
-
-    def __call__(self, frame: Frame, kp2d: Keypoints2D) -> torch.Tensor:
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, device).items()}
-        return nn.Module.__call__(self, inputs)[0].float()
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
         """a batch of `prepare`d frames: image [B x 3 x h x w] (zero-padded to the largest), size [B x 2], uv

@@ -18,8 +18,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from i2pbench.api import Component, Exchanger, Features, Frame, Keypoints2D, Keypoints3D, LearnedComponent, StageError
-from i2pbench.batching import exchange_one_frame
+from i2pbench.api import BatchedStage, Component, Exchanger, Frame, Keypoints2D, Keypoints3D
 from i2pbench.layers.attention import key_mask
 from i2pbench.layers.pointnet2 import normalize_points
 
@@ -76,7 +75,7 @@ class ExchangeBlock(nn.Module):
         return self.cross2d(d2, d3, mask3d), self.cross3d(d3, d2, mask2d)
 
 
-class AttentionExchanger(LearnedComponent, Exchanger):
+class AttentionExchanger(BatchedStage, Exchanger):
     """Positional encodings added to both descriptor sets, then `num_blocks` self + cross attention blocks."""
 
     name = "attention"
@@ -119,13 +118,6 @@ class AttentionExchanger(LearnedComponent, Exchanger):
         if len(xyz):
             xyz = normalize_points(xyz, xyz, self.conf["canonical_yaw"])
         return {"uv": normalize_pixels(uv, frame.image_size), "xyz": xyz}
-
-    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Features:
-        if features.desc2d is None or features.desc3d is None:
-            raise StageError(self.label, "needs descriptors on both sides (an encoder2d and an encoder3d)")
-        if len(kp2d) == 0 or len(kp3d) == 0:  # nothing to attend to; the matcher will find no match
-            return features
-        return exchange_one_frame(self, frame, kp2d, kp3d, features)
 
     def forward(
         self,

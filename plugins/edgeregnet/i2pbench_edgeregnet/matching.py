@@ -17,12 +17,12 @@ import torch
 from torch import nn
 
 from i2pbench.api import (
+    BatchedStage,
     Component,
     Features,
     Frame,
     Keypoints2D,
     Keypoints3D,
-    LearnedComponent,
     Matcher,
     Matches,
     StageError,
@@ -77,7 +77,7 @@ def to_device(array: np.ndarray, device: torch.device) -> torch.Tensor:
     return torch.from_numpy(np.asarray(array)).to(device)
 
 
-class OptimalMatcher(LearnedComponent, Matcher):
+class OptimalMatcher(BatchedStage, Matcher):
     """Mutual maxima of the soft partial assignment P between 2D and 3D edge descriptors: EdgeRegNet's optimal
     matching layer, written in LightGlue's style. Named `lightglue`, as the shipped weights and leaderboards record
     it; `optimal-matching` is its honest alias (plugin.py)."""
@@ -118,8 +118,8 @@ class OptimalMatcher(LearnedComponent, Matcher):
     def _run(self, features: Features) -> tuple[torch.Tensor, ...]:
         if features.desc2d is None or features.desc3d is None:
             raise StageError(self.label, "needs descriptors on both sides (an encoder2d and an encoder3d)")
-        device = next(self.parameters()).device
-        outputs = nn.Module.__call__(self, features.desc2d.to(device)[None], features.desc3d.to(device)[None])
+        device = self.device
+        outputs = self.batched(features.desc2d.to(device)[None], features.desc3d.to(device)[None])
         return tuple(t[0] for t in outputs)
 
     @torch.no_grad()
@@ -158,7 +158,7 @@ class OptimalMatcher(LearnedComponent, Matcher):
         mask3d: torch.Tensor,
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """eq. (15), the mean over a batch of `prepare`d frames; descriptors [B x M2 x D], [B x M3 x D]."""
-        log_p, z2d, z3d, z_fov = nn.Module.__call__(self, features.desc2d, features.desc3d, mask2d, mask3d)
+        log_p, z2d, z3d, z_fov = self.batched(features.desc2d, features.desc3d, mask2d, mask3d)
         k = inputs["pairs2d"].shape[1]
         valid = torch.arange(k, device=log_p.device)[None] < inputs["num_pairs"][:, None]
         w = self.conf["weights"]
@@ -173,16 +173,6 @@ class OptimalMatcher(LearnedComponent, Matcher):
             masks=(mask2d, mask3d),
             weights=(w["fov"], w["sigma"], w["P"]),
         )
-
-    def loss(
-        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features
-    ) -> tuple[torch.Tensor, dict[str, float]]:
-        """eq. (15) on this frame; frame must carry T_gt."""
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, kp3d, device).items()}
-        batched = Features(features.desc2d.to(device)[None], features.desc3d.to(device)[None])
-        ones = [torch.ones(1, n, dtype=torch.bool, device=device) for n in (len(kp2d), len(kp3d))]
-        return self.batch_loss(inputs, batched, *ones)
 
 
 LightGlueMatcher = OptimalMatcher  # the class's former name, for code that imports it

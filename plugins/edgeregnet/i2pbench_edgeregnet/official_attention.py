@@ -23,8 +23,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from i2pbench.api import Component, Exchanger, Features, Frame, Keypoints2D, Keypoints3D, LearnedComponent, StageError
-from i2pbench.batching import exchange_one_frame
+from i2pbench.api import BatchedStage, Component, Exchanger, Frame, Keypoints2D, Keypoints3D
 from i2pbench.layers.attention import key_mask
 
 from .matching import descriptor_dim_mismatch
@@ -74,7 +73,7 @@ class AttentionalPropagation(nn.Module):
         return self.mlp(torch.cat([x, self.merge(message)], -1))
 
 
-class OfficialAttention(LearnedComponent, Exchanger):
+class OfficialAttention(BatchedStage, Exchanger):
     """The authors' positional encoders and tied attentional GNN (module docstring)."""
 
     name = "attention-official"
@@ -111,13 +110,6 @@ class OfficialAttention(LearnedComponent, Exchanger):
             xyz = normalize(xyz, torch.from_numpy(subsample(frame, self.conf["num_points"])))
         uv = normalize_pixels(uv, tuple(self.conf["canvas"]))
         return {"uv": uv.to(device), "xyz": xyz.to(device)}
-
-    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Features:
-        if features.desc2d is None or features.desc3d is None:
-            raise StageError(self.label, "needs descriptors on both sides (an encoder2d and an encoder3d)")
-        if len(kp2d) == 0 or len(kp3d) == 0:
-            return features
-        return exchange_one_frame(self, frame, kp2d, kp3d, features)
 
     def forward(
         self,

@@ -24,12 +24,12 @@ import torch.nn.functional as F
 from torch import nn
 
 from i2pbench.api import (
+    BatchedStage,
     Component,
     Features,
     Frame,
     Keypoints2D,
     Keypoints3D,
-    LearnedComponent,
     Matcher,
     Matches,
     StageError,
@@ -96,7 +96,7 @@ def official_loss(
     return {"fov": fov, "P": loss_p, "sigma": sigma, "pairs": torch.tensor(float(len(rows)))}
 
 
-class OfficialMatcher(LearnedComponent, Matcher):
+class OfficialMatcher(BatchedStage, Matcher):
     """The authors' shared feature layer, FOV head and LightGlue match assignment (module docstring)."""
 
     name = "match-assignment-official"
@@ -142,8 +142,8 @@ class OfficialMatcher(LearnedComponent, Matcher):
             raise StageError(self.label, "needs descriptors on both sides (an encoder2d and an encoder3d)")
         if len(kp2d) == 0 or len(kp3d) == 0:
             return Matches.empty()
-        device = next(self.parameters()).device
-        out = nn.Module.__call__(self, features.desc2d.to(device)[None], features.desc3d.to(device)[None])
+        device = self.device
+        out = self.batched(features.desc2d.to(device)[None], features.desc3d.to(device)[None])
         i3d, i2d, score = filter_matches(out["log_assignment"][0], self.conf["filter_threshold"])
         fov = out["fov"][0]
         top = torch.zeros_like(fov, dtype=torch.bool)
@@ -168,7 +168,7 @@ class OfficialMatcher(LearnedComponent, Matcher):
         self, inputs: dict[str, torch.Tensor], features: Features, mask2d: torch.Tensor, mask3d: torch.Tensor
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """the authors' loss, the mean over a batch of `prepare`d frames (each frame's own keypoints)."""
-        out = nn.Module.__call__(self, features.desc2d, features.desc3d, mask2d, mask3d)
+        out = self.batched(features.desc2d, features.desc3d, mask2d, mask3d)
         terms = []
         for b in range(len(mask2d)):
             n2, n3 = int(mask2d[b].sum()), int(mask3d[b].sum())
@@ -179,13 +179,3 @@ class OfficialMatcher(LearnedComponent, Matcher):
         mean = {k: torch.stack([t[k] for t in terms]).mean() for k in terms[0]}
         total = mean["fov"] + mean["P"] + mean["sigma"]
         return total, {k: float(v.detach()) for k, v in mean.items()}
-
-    def loss(
-        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features
-    ) -> tuple[torch.Tensor, dict[str, float]]:
-        """the authors' loss on this frame; frame must carry T_gt."""
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, kp3d, device).items()}
-        batched = Features(features.desc2d.to(device)[None], features.desc3d.to(device)[None])
-        ones = [torch.ones(1, n, dtype=torch.bool, device=device) for n in (len(kp2d), len(kp3d))]
-        return self.batch_loss(inputs, batched, *ones)

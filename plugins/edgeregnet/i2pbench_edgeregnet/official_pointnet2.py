@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from i2pbench.api import Encoder3D, Frame, Keypoints3D, LearnedComponent, StageError
+from i2pbench.api import BatchedStage, Encoder3D, Frame, Keypoints3D, StageError
 from i2pbench.layers import pointnet2
 from i2pbench.layers.pointnet2 import farthest_point_sampling, frame_seed, gather
 
@@ -132,7 +132,7 @@ def subsample(frame: Frame, num_points: int) -> np.ndarray:
     return np.asarray(points, np.float32)
 
 
-class OfficialPointNet2(LearnedComponent, Encoder3D):
+class OfficialPointNet2(BatchedStage, Encoder3D):
     """The authors' PointNet++ descriptors of LiDAR edge points (module docstring)."""
 
     name = "pointnet2-official"
@@ -180,11 +180,6 @@ class OfficialPointNet2(LearnedComponent, Encoder3D):
             ball1 = pointnet2.ball_query(points, c1, sa1["radius"], sa1["nsample"])
             ball2 = pointnet2.ball_query(c1, gather(c1, fps2), sa2["radius"], sa2["nsample"])
         return {"fps1": fps1[0], "ball1": ball1[0], "fps2": fps2[0], "ball2": ball2[0]}
-
-    def __call__(self, frame: Frame, kp3d: Keypoints3D) -> torch.Tensor:
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp3d, device).items()}
-        return nn.Module.__call__(self, inputs)[0].float()
 
     def forward(self, inputs: dict[str, torch.Tensor], trace: dict | None = None) -> torch.Tensor:
         """`prepare`d frames: xyz [B x N x 4], edges [B x M x 4] and the grouping -> descriptors [B x M x D];

@@ -17,7 +17,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from i2pbench.api import Encoder2D, Frame, Keypoints2D, LearnedComponent
+from i2pbench.api import BatchedStage, Encoder2D, Frame, Keypoints2D
 
 VGG = (("conv1a", 1, 64), ("conv1b", 64, 64), ("conv2a", 64, 64), ("conv2b", 64, 64))
 VGG += (("conv3a", 64, 128), ("conv3b", 128, 128), ("conv4a", 128, 128), ("conv4b", 128, 128))
@@ -53,7 +53,7 @@ def sample_descriptors(fmap: torch.Tensor, uv: torch.Tensor, s: int = 8) -> torc
     return F.normalize(out, p=2, dim=1).transpose(1, 2)
 
 
-class OfficialSuperPoint(LearnedComponent, Encoder2D):
+class OfficialSuperPoint(BatchedStage, Encoder2D):
     """The authors' SuperPoint descriptors of edge pixels (module docstring)."""
 
     name = "superpoint-official"
@@ -81,11 +81,6 @@ class OfficialSuperPoint(LearnedComponent, Encoder2D):
         image = (torch.from_numpy(grey).float() / 255 - self.conf["mean"]) / self.conf["std"]
         uv = torch.from_numpy(np.asarray(kp2d.uv, np.float32))
         return {"image": image[None].to(device), "uv": uv.to(device)}
-
-    def __call__(self, frame: Frame, kp2d: Keypoints2D) -> torch.Tensor:
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, device).items()}
-        return nn.Module.__call__(self, inputs)[0].float()
 
     def dense(self, image: torch.Tensor) -> torch.Tensor:
         """image [B x 1 x H x W] -> the descriptor map [B x D x H/8 x W/8], L2-normalised (superpoint.py:148-193)."""

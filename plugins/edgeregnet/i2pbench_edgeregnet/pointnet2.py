@@ -20,11 +20,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from i2pbench.api import Encoder3D, Frame, Keypoints3D, LearnedComponent, StageError
+from i2pbench.api import BatchedStage, Encoder3D, Frame, Keypoints3D, StageError
 from i2pbench.layers.pointnet2 import SetAbstraction, frame_seed, group, interpolate, normalize_points, shared_mlp
 
 
-class PointNet2Encoder(LearnedComponent, Encoder3D):
+class PointNet2Encoder(BatchedStage, Encoder3D):
     """Descriptors of LiDAR edge points from a two-level PointNet++ on the (sub-sampled) cloud."""
 
     name = "pointnet2"
@@ -91,11 +91,6 @@ class PointNet2Encoder(LearnedComponent, Encoder3D):
             if cache is not None:
                 cache["grouping"] = grouping
         return {k: v.to(device) for k, v in {**inputs, **grouping}.items()}
-
-    def __call__(self, frame: Frame, kp3d: Keypoints3D) -> torch.Tensor:
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp3d, device).items()}
-        return nn.Module.__call__(self, inputs)[0].float()
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
         """a batch of `prepare`d frames (each tensor with a leading B) -> edge-point descriptors [B x M x D].

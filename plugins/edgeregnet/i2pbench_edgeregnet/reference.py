@@ -75,7 +75,7 @@ def reference_forward(stages: dict, inputs: dict[str, np.ndarray]) -> dict[str, 
     branch takes the recorded normalised cloud and the recorded FPS draws, as the authors' forward did."""
     frame, kp2d, kp3d = reference_frame(inputs)
     enc2d, enc3d, exchanger, matcher = (stages[k] for k in ("encoder2d", "encoder3d", "exchanger", "matcher"))
-    d2 = torch.nn.Module.__call__(enc2d, {k: v[None] for k, v in enc2d.prepare(frame, kp2d).items()})
+    d2 = enc2d.batched(enc2d.one(frame, kp2d))
     xyz = torch.from_numpy(inputs["xyz"])
     fps = (torch.from_numpy(inputs["fps_sa1"]), torch.from_numpy(inputs["fps_sa2"]))
     grouped = {"xyz": xyz, "edges": torch.from_numpy(inputs["kp3d"]), **enc3d.group(xyz, fps=fps)}

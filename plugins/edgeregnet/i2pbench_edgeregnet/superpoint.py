@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from i2pbench.api import Encoder2D, Frame, Keypoints2D, LearnedComponent
+from i2pbench.api import BatchedStage, Encoder2D, Frame, Keypoints2D
 from i2pbench.layers.sampling import normalize_images, sample_descriptors
 
 GREY_WEIGHTS = (0.299, 0.587, 0.114)  # ITU-R BT.601, as cv2.cvtColor(RGB2GRAY)
@@ -33,7 +33,7 @@ def conv(cin: int, cout: int, kernel: int = 3) -> nn.Conv2d:
     return nn.Conv2d(cin, cout, kernel, padding=kernel // 2)
 
 
-class SuperPointEncoder(LearnedComponent, Encoder2D):
+class SuperPointEncoder(BatchedStage, Encoder2D):
     """Descriptors of image edge pixels from a VGG backbone on the grayscale image."""
 
     name = "superpoint-cnn"
@@ -75,11 +75,6 @@ class SuperPointEncoder(LearnedComponent, Encoder2D):
         grey = to_grey(frame.image, device)
         uv = torch.from_numpy(np.asarray(kp2d.uv, np.float32)).to(device)
         return {"grey": grey, "size": torch.tensor(grey.shape[1:], device=device), "uv": uv}
-
-    def __call__(self, frame: Frame, kp2d: Keypoints2D) -> torch.Tensor:
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, device).items()}
-        return nn.Module.__call__(self, inputs)[0].float()
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
         """a batch of `prepare`d frames: grey [B x 1 x H x W] in [0, 1] (zero-padded to the largest), size [B x 2],

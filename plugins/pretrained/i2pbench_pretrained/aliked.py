@@ -10,13 +10,13 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from i2pbench.api import ConfigError, Encoder2D, Frame, Keypoints2D, LearnedComponent
+from i2pbench.api import BatchedStage, ConfigError, Encoder2D, Frame, Keypoints2D
 
 from .aliked_net import CONFIGS, AlikedNet
 from .weights import sha256, weight_file
 
 
-class AlikedEncoder(LearnedComponent, Encoder2D):
+class AlikedEncoder(BatchedStage, Encoder2D):
     """Descriptors of image keypoints from ALIKED's pretrained feature map and SDDH head; a learned linear map to
     `descriptor_dim` where that differs from the network's width."""
 
@@ -61,11 +61,6 @@ class AlikedEncoder(LearnedComponent, Encoder2D):
         rgb = torch.from_numpy(np.ascontiguousarray(frame.image)).to(device=device, dtype=torch.float32)
         uv = torch.from_numpy(np.asarray(kp2d.uv, np.float32)).to(device)
         return {"rgb": rgb.permute(2, 0, 1) / 255.0, "size": torch.tensor(rgb.shape[:2], device=device), "uv": uv}
-
-    def __call__(self, frame: Frame, kp2d: Keypoints2D) -> torch.Tensor:
-        device = next(self.parameters()).device
-        inputs = {k: v[None] for k, v in self.prepare(frame, kp2d, device).items()}
-        return nn.Module.__call__(self, inputs)[0].float()
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
         """a batch of `prepare`d frames (rgb [B x 3 x H x W] zero-padded, size [B x 2], uv [B x M x 2]) ->
