@@ -204,3 +204,13 @@ def test_the_cards_default_name_and_version_are_the_protocols():
     from i2pbench import protocol
 
     assert (cards.DEFAULT_NAME, cards.DEFAULT_VERSION) == (protocol.DEFAULT_NAME, protocol.DEFAULT_VERSION)
+
+
+def test_docs_protocol_cites_every_line_each_card_follows():
+    from pathlib import Path
+
+    page = (Path(__file__).parent.parent / "docs" / "protocol.md").read_text()
+    for card in cards.BUILTIN:
+        assert f"#### `{card.name}` v{card.version}" in page
+        for cite in card.cites:
+            assert f"`{cite.split(' — ')[0]}` — {cite.split(' — ')[1]}" in page, cite

@@ -167,7 +167,7 @@ VP2P_MATCH = ProtocolCard(
     version=1,
     paper="VP2P-Match",
     kitti=_PEER_KITTI,
-    nuscenes=_PEER_NUSCENES,
+    nuscenes=None,
     rules=ScoringRules(failure="identity", filter_rre_deg=math.inf, filter_rte_m=math.inf),
     cites=(
         _cite("junshengzhou/VP2P-Match", "run_kitti.py:17-23 — RRE = sum |xzy Euler| of inv(P_pred) @ P_gt"),
@@ -178,8 +178,7 @@ VP2P_MATCH = ProtocolCard(
     ),
     notes=(
         "the same rules as CorrI2P's; a failed PnP is scored as the identity pose (see corri2p)",
-        "nuScenes inputs as CorrI2P's nuScenes options with CoFiI2P's x0.4 scale: VP2P-Match ships no nuScenes "
-        "loader at this commit",
+        "the repository has no nuScenes loader at this commit, so the card has no nuScenes inputs",
     ),
 )
 
@@ -257,7 +256,7 @@ ICL = ProtocolCard(
         _cite(
             "OpenSpaceAI/ICL-I2PReg",
             "vision3d-main/vision3d/datasets/registration/kitti_odometry/"
-            "kitti_odometry.py:87-88,275-285 — t ±10 m, yaw ±2π, resize, centre crop",
+            "kitti_odometry.py:87-88,95-96,271-289 — t ±10 m, yaw ±2π, 160 x 512, 0.1 m voxels, x0.5, centre crop",
         ),
     ),
     notes=(
