@@ -8,8 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from . import yaml_input
 from .components import STAGE_BASES, STAGE_ORDER, overlay
 from .errors import PluginError
 from .pipeline import NONE, REQUIRED_STAGES, Combination
@@ -30,7 +29,7 @@ def parse_conf_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
         kind, *path = target.split(".")
         if not sep or not all(path) or not path or kind not in STAGE_ORDER:
             raise PluginError(f"--conf {item!r}: expected KIND.KEY=VALUE with KIND one of {list(STAGE_ORDER)}")
-        setting: Any = yaml.safe_load(value)
+        setting: Any = yaml_input.load(value)
         for key in reversed(path):
             setting = {key: setting}
         confs[kind] = overlay(confs.get(kind, {}), setting)
@@ -151,7 +150,7 @@ class GridFile:
 
 def load_grid_file(path: str | Path) -> GridFile:
     """Read and check a grid file; unknown keys and stage kinds are refused, naming the file."""
-    data = yaml.safe_load(Path(path).read_text()) or {}
+    data = yaml_input.load(Path(path).read_text()) or {}
     if not isinstance(data, dict) or set(data) - set(GRID_KEYS):
         found = sorted(data) if isinstance(data, dict) else type(data).__name__
         raise PluginError(f"grid file {path}: expected a mapping with keys {list(GRID_KEYS)}, found {found}")

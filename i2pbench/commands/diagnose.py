@@ -53,6 +53,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import pandas as pd
 
+    from ..data.skipping import loaded_frames
     from ..diagnostics import edge_diagnostics_grid, summarize_edge_diagnostics
     from ..errors import I2PBenchError
     from ..plugins import default_registry
@@ -61,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     registry = default_registry()
     dataset = open_dataset(registry, args)
     protocol = Protocol(seed=args.seed)
-    frames = (protocol.apply(dataset.load(f)) for f in dataset.frame_ids()[: args.frames])
+    frames = loaded_frames(dataset, dataset.frame_ids()[: args.frames], protocol, "diagnose")  # bad ones skipped
     e2 = [registry.component("extractor2d", n)() for n in args.extractor2d]
     e3 = [registry.component("extractor3d", n)() for n in args.extractor3d]
     summary = summarize_edge_diagnostics(edge_diagnostics_grid(frames, e2, e3, args.radius))

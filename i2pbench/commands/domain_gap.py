@@ -94,6 +94,7 @@ def chosen_frames(registry: Any, args: argparse.Namespace) -> tuple[Any, list[st
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..data.skipping import loaded_frames
     from ..domain_gap import gap_extractors, side_by_side, summarize_frames, to_markdown
     from ..errors import I2PBenchError
     from ..plugins import default_registry
@@ -105,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     sides = [chosen_frames(registry, ns) for ns in (args, other)]
     extractors, protocol = gap_extractors(registry), Protocol(seed=args.seed)
     summaries = [
-        summarize_frames((protocol.apply(dataset.load(f)) for f in ids), extractors, args.gradient_threshold)
+        summarize_frames(loaded_frames(dataset, ids, protocol, "domain-gap"), extractors, args.gradient_threshold)
         for dataset, ids in sides
     ]
     table = side_by_side(*summaries, labels(args, other))

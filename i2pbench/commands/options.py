@@ -53,8 +53,10 @@ def yaml_setting(value: str) -> str:
     """An argparse type for KEY=VALUE options whose value is YAML: refuse malformed YAML while parsing options."""
     import yaml
 
+    from .. import yaml_input
+
     try:
-        yaml.safe_load(value.partition("=")[2])
+        yaml_input.load(value.partition("=")[2])  # aliases refused too
     except yaml.YAMLError as exc:
         raise argparse.ArgumentTypeError(f"{value!r}: the value is not valid YAML ({yaml_problem(exc)})") from None
     return value
@@ -130,8 +132,7 @@ def split_conf(registry, args: argparse.Namespace, conf: dict[str, Any]) -> dict
 
 def parse_data_conf(items: list[str]) -> dict[str, Any]:
     """`["frames.test=3"]` -> {"frames": {"test": 3}}."""
-    import yaml
-
+    from .. import yaml_input
     from ..errors import DataError
 
     conf: dict[str, Any] = {}
@@ -143,7 +144,7 @@ def parse_data_conf(items: list[str]) -> dict[str, Any]:
         node = conf
         for part in parents:
             node = node.setdefault(part, {})
-        node[leaf] = yaml.safe_load(value)
+        node[leaf] = yaml_input.load(value)
     return conf
 
 

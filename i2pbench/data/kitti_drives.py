@@ -17,6 +17,7 @@ from typing import Any, ClassVar
 
 import yaml
 
+from .. import yaml_input
 from ..errors import DataError
 from ..types import SensorFrame
 from .base import Dataset
@@ -60,7 +61,7 @@ def load_split_file(name_or_path: str | Path) -> SplitFile:
     path = split_file_path(name_or_path)
     raw = path.read_bytes()
     try:
-        data = yaml.safe_load(raw)
+        data = yaml_input.load(raw)
     except yaml.YAMLError as exc:
         raise DataError(f"{path}: not valid YAML ({exc})") from None
     if not isinstance(data, dict) or not isinstance(data.get("scenes"), dict):
