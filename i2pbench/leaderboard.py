@@ -160,39 +160,51 @@ def latency_columns(board: pd.DataFrame) -> list[str]:
     return [c for c in board.columns if c.startswith(LATENCY_PREFIX)]
 
 
-DISPLAY = [
-    "dataset",
-    "split",
-    "method",
-    "combination",
-    "corruption",
-    "severity",
-    "weights",
-    "weights_trained_on",
-    "frames",
-    "failures",
-    ACC,
-    CHANCE,
-    ACC_SKILL,
-    RTE,
-    RRE,
-    INLIER_RATIO,
-    TRUE_MATCHES,
-    MODEL_SIZE,
-    LATENCY_MEDIAN,
-    LATENCY_P90,
-]
+def _displayed(columns: list[str], metrics: tuple[Metric, ...]) -> list[str]:
+    """`columns` with each of `metrics`' interval after it (after its "mean ± std" text for RTE and RRE), and after
+    Acc. the verdict against the row above."""
+    after: dict[str, list[str]] = {}
+    for metric in uncertainty.with_interval(metrics):
+        after.setdefault(metric.summary or metric.column, []).append(uncertainty.ci(metric))
+    after.setdefault(ACC, []).append(uncertainty.VERSUS)
+    return [name for column in columns for name in (column, *after.get(column, []))]
+
+
+DISPLAY = _displayed(
+    [
+        "dataset",
+        "split",
+        "combination",
+        "method",
+        "corruption",
+        "severity",
+        "weights",
+        "weights_trained_on",
+        "frames",
+        "failures",
+        ACC,
+        CHANCE,
+        ACC_SKILL,
+        RTE,
+        RRE,
+        INLIER_RATIO,
+        TRUE_MATCHES,
+        MODEL_SIZE,
+        LATENCY_MEDIAN,
+        LATENCY_P90,
+    ],
+    metric_registry.BUILTIN,
+)
 
 
 def to_markdown(board: pd.DataFrame, columns: list[str] | None = None) -> str:
-    """A Markdown table of `columns` (default DISPLAY, each interval after its metric, then the columns of metrics
-    plugins registered, less the columns that are empty in every row). An interval shows as "[low, high]"."""
-    shown = _with_intervals(board)
+    """A Markdown table of `columns` (default DISPLAY, then the columns of metrics plugins registered with their
+    intervals, less the columns that are empty in every row)."""
     if columns is None:
         plugins = metric_registry.active()[len(metric_registry.BUILTIN) :]
-        extra = [m.column for m in plugins if m.column and m.column not in DISPLAY]
-        columns = [c for c in _displayed(DISPLAY + extra) if c in shown and not (shown[c].astype(str) == "").all()]
-    shown = shown[[c for c in columns if c in shown]].copy()
+        extra = _displayed([m.column for m in plugins if m.column], plugins)
+        columns = [c for c in DISPLAY + extra if c in board and not (board[c].astype(str) == "").all()]
+    shown = board[[c for c in columns if c in board]].copy()
     for column in shown.columns:
         if shown[column].dtype.kind == "f":
             shown[column] = shown[column].map(lambda v: "-" if pd.isna(v) else f"{v:.2f}")
@@ -200,29 +212,6 @@ def to_markdown(board: pd.DataFrame, columns: list[str] | None = None) -> str:
     rule = "|" + "|".join("---" for _ in shown.columns) + "|"
     lines = ["| " + " | ".join(str(v) for v in row) + " |" for row in shown.itertuples(index=False)]
     return "\n".join([header, rule, *lines])
-
-
-def _displayed(columns: list[str]) -> list[str]:
-    """`columns` with each metric's interval after it (after its "mean ± std" text for RTE and RRE), and after
-    Acc.'s the verdict against the row above."""
-    after = {}
-    for metric in uncertainty.with_interval(metric_registry.active()):
-        after[metric.summary or metric.column] = [uncertainty.ci(metric)]
-    after[ACC] = after.get(ACC, []) + [uncertainty.VERSUS]
-    return [name for column in columns for name in (column, *after.get(column, []))]
-
-
-def _with_intervals(board: pd.DataFrame) -> pd.DataFrame:
-    """The board with a "[low, high]" text column beside each interval's two numbers."""
-    out = board.copy()
-    for metric in uncertainty.with_interval(metric_registry.active()):
-        low, high = uncertainty.low(metric), uncertainty.high(metric)
-        if low in board and high in board:
-            out[uncertainty.ci(metric)] = [
-                "-" if pd.isna(a) or pd.isna(b) else f"[{a:{metric.fmt}}, {b:{metric.fmt}}]"
-                for a, b in zip(board[low], board[high], strict=True)
-            ]
-    return out
 
 
 def write(board: pd.DataFrame, stem: str | Path) -> list[Path]:

@@ -1,10 +1,10 @@
 """A board's uncertainty columns, and the paired comparison of two rows read back from boards.
 
 Each registered metric that aggregates a proportion or a mean gets `<label> 95% low` / `<label> 95% high` (Wilson,
-or a seeded bootstrap: `stats`), in the aggregate's units. So that two boards (a new run and a committed baseline)
-can be compared frame by frame without their stores, a row also keeps its per-frame values: `per frame <name>`,
-space-separated in the order of its sorted frame ids, with `frames digest` naming that set of frames; two rows are
-paired only when their digests agree.
+or a seeded bootstrap: `stats`), in the aggregate's units, and `<label> 95% CI`, the two as text "[low, high]". So
+that two boards (a new run and a committed baseline) can be compared frame by frame without their stores, a row
+also keeps its per-frame values: `per frame <name>`, space-separated in the order of its sorted frame ids, with
+`frames digest` naming that set of frames; two rows are paired only when their digests agree.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ def high(metric: Metric) -> str:
 
 
 def ci(metric: Metric) -> str:
-    """The Markdown board's text column "[low, high]"."""
+    """The text column "[low, high]" the Markdown board and the report show."""
     return f"{metric.short} 95% CI"
 
 
@@ -64,7 +64,8 @@ def cells(records: pd.DataFrame, protocol: Protocol, metrics: Iterable[Metric]) 
     chosen = with_interval(metrics)
     out: dict[str, object] = {}
     for metric in chosen:
-        out[low(metric)], out[high(metric)] = interval(metric, metric.per_frame(records, protocol))
+        a, b = out[low(metric)], out[high(metric)] = interval(metric, metric.per_frame(records, protocol))
+        out[ci(metric)] = "-" if math.isnan(a) or math.isnan(b) else f"[{a:{metric.fmt}}, {b:{metric.fmt}}]"
     if "frame_id" not in records:
         return out
     order = np.argsort(records["frame_id"].astype(str).to_numpy(), kind="stable")

@@ -52,4 +52,4 @@ def test_the_board_carries_a_method_column_after_the_old_columns():
     board = leaderboard.build(records)
     assert board["method"].tolist() == ["classic"]
     assert list(board.columns).index("method") > list(board.columns).index(leaderboard.LATENCY_MEDIAN)
-    assert "| method | combination |" in leaderboard.to_markdown(board)
+    assert "| combination | method |" in leaderboard.to_markdown(board)
