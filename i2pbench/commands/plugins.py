@@ -62,8 +62,8 @@ def _lines(row: dict[str, Any]) -> list[str]:
     for method in row["methods"]:
         lines += _method_lines(method)
     declared = {what: {n for m in row["methods"] for n in m[what]} for what in ("presets", "weights")}
-    for kind, what in (("preset", "presets"), ("weights", "weights")):
-        plain = [n for n in row["components"].get(kind, []) if n not in declared[what]]
+    for kind, what in (("preset", "presets"), ("weights", "weights"), ("protocol", "")):
+        plain = [n for n in row["components"].get(kind, []) if n not in declared.get(what, ())]
         if plain:
             lines.append(f"  {kind:12s} {', '.join(plain)}")
     return lines
