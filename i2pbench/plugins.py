@@ -250,12 +250,20 @@ def _warn(plugin: str, problem: str) -> None:
     )
 
 
-def _collect(pm: pluggy.PluginManager, plugin: str, hook_name: str) -> list[tuple[tuple[Any, ...], dict[str, Any]]]:
-    """What one plugin registers from one hook: the hook is called through pluggy on that plugin alone (a subset
-    hook caller), so each registration is attributed to the plugin that made it."""
+def plugin_alone(plugin: object, name: str) -> pluggy.PluginManager:
+    """A plugin manager holding only `plugin`: its hooks, called through pluggy, call that plugin alone, so what they
+    register is attributed to it. (pluggy's subset_hook_caller would do on the shared manager, but it hashes every
+    other plugin, and a plugin object need not be hashable.)"""
+    pm = pluggy.PluginManager(ENTRY_POINT_GROUP)
+    pm.add_hookspecs(hookspecs)
+    pm.register(plugin, name=name)
+    return pm
+
+
+def _collect(alone: pluggy.PluginManager, hook_name: str) -> list[tuple[tuple[Any, ...], dict[str, Any]]]:
+    """What the one plugin `alone` holds registers from one hook: each `register(...)` call's arguments."""
     out: list[tuple[tuple[Any, ...], dict[str, Any]]] = []
-    others = [p for name, p in pm.list_name_plugin() if name != plugin]
-    pm.subset_hook_caller(hook_name, others)(register=lambda *args, **kwargs: out.append((args, kwargs)))
+    getattr(alone.hook, hook_name)(register=lambda *args, **kwargs: out.append((args, kwargs)))
     return out
 
 
@@ -410,26 +418,26 @@ def _copy(registry: Registry) -> Registry:
 def _register(registry: Registry, pm: pluggy.PluginManager, plugin: str, strict: bool = False) -> None:
     """Add everything one plugin registers, or (when any of it is refused) nothing at all; `strict` imports what
     was registered by path, so a wrong path fails here."""
-    trial = _copy(registry)
+    trial, alone = _copy(registry), plugin_alone(pm.get_plugin(plugin), plugin)
     hooks = {kind: spec.hook for kind, spec in STAGES.items()}
     hooks |= {"dataset": "register_datasets", "corruption": "register_corruptions"}
     for kind, hook in hooks.items():
-        for args, kwargs in _collect(pm, plugin, hook):
+        for args, kwargs in _collect(alone, hook):
             aliases = kwargs.pop("aliases", ())
             name, entry = _entry(kind, plugin, *args, **kwargs)
             _add(trial._table(kind), kind, name, entry, plugin)
             _add_aliases(trial, kind, name, aliases, plugin)
             if strict and isinstance(entry, LazyComponent):
                 _resolved(trial._table(kind), name)
-    for args, kwargs in _collect(pm, plugin, "register_presets"):
+    for args, kwargs in _collect(alone, "register_presets"):
         _add_preset(trial, plugin, *args, **kwargs)
-    for (path,), _ in _collect(pm, plugin, "register_weights"):
+    for (path,), _ in _collect(alone, "register_weights"):
         trial.weights.append((str(path), plugin))
-    for args, kwargs in _collect(pm, plugin, "register_methods"):
+    for args, kwargs in _collect(alone, "register_methods"):
         _add_method(trial, plugin, *args, **kwargs)
-    for (card,), _ in _collect(pm, plugin, "register_protocols"):
+    for (card,), _ in _collect(alone, "register_protocols"):
         _add_protocol(trial, plugin, card)
-    for args, kwargs in _collect(pm, plugin, "register_metrics"):
+    for args, kwargs in _collect(alone, "register_metrics"):
         _add_metric(trial, plugin, *args, **kwargs)
     for table in fields(Registry):
         if table.name != "plugins":

@@ -5,23 +5,18 @@ from __future__ import annotations
 import functools
 from typing import Any
 
-import pluggy
-
-from .. import hookspecs
 from ..components import STAGES, Component
-from ..plugins import ENTRY_POINT_GROUP, LazyComponent
+from ..plugins import LazyComponent, plugin_alone
 
 
 def registered_components(plugin: object) -> list[type[Component]]:
     """Every class the plugin's stage hooks register, in hook order (those registered by import path imported), so a
     test can run the kit on each."""
     owner = getattr(plugin, "__name__", type(plugin).__name__)
-    pm = pluggy.PluginManager(ENTRY_POINT_GROUP)  # the plugin alone, its hooks checked against the specs
-    pm.add_hookspecs(hookspecs)
-    pm.register(plugin, name=owner)
+    alone = plugin_alone(plugin, owner)  # its hooks checked against the specs, then called through pluggy
     found: list[type[Component]] = []
     for kind, spec in STAGES.items():
-        getattr(pm.hook, spec.hook)(register=functools.partial(_add, found, kind, owner))
+        getattr(alone.hook, spec.hook)(register=functools.partial(_add, found, kind, owner))
     return found
 
 
