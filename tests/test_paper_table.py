@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 import toy_plugin
 
-from i2pbench import comparison
+from i2pbench import paper_table
 from i2pbench.cli import main
 from i2pbench.errors import I2PBenchError, PluginError
 from i2pbench.grid import base_combinations
@@ -55,7 +55,7 @@ def test_an_included_preset_no_plugin_registers_and_a_cycle_are_errors_naming_th
 
 def test_the_paper_table_lists_the_seed_papers_methods_in_table_1_order():
     registry = default_registry()
-    names = [row.name for row in comparison.preset_rows(registry, "paper-table-1")]
+    names = [row.name for row in paper_table.preset_rows(registry, "paper-table-1")]
     assert names == [
         "deepi2p",
         "deepi2p (deepi2p-frustum-3d)",
@@ -71,7 +71,7 @@ def _board(rows: list[dict]) -> pd.DataFrame:
     return pd.DataFrame([{**base, **row} for row in rows])
 
 
-ROWS = [comparison.TableRow("ours", "a > b"), comparison.TableRow("peer", "c > d")]
+ROWS = [paper_table.TableRow("ours", "a > b"), paper_table.TableRow("peer", "c > d")]
 
 
 def test_each_row_takes_its_own_board_row_of_the_clean_protocol_and_a_missing_one_stays_empty():
@@ -91,7 +91,7 @@ def test_each_row_takes_its_own_board_row_of_the_clean_protocol_and_a_missing_on
         ]
     )
     nuscenes = _board([{"combination": "a > b", ACC: 10.0, CHANCE: 0, RTE: "1.50 ± 0.40", TRUE_MATCHES: 5.0}])
-    table = comparison.build(ROWS, {"KITTI": kitti, "nuScenes": nuscenes})
+    table = paper_table.build(ROWS, {"KITTI": kitti, "nuScenes": nuscenes})
     ours, peer = table.iloc[0], table.iloc[1]
     assert (ours["KITTI Acc. (%) ↑"], ours["KITTI RTE (m) ↓"], ours["KITTI chance successes"]) == (
         75.0,
@@ -102,8 +102,8 @@ def test_each_row_takes_its_own_board_row_of_the_clean_protocol_and_a_missing_on
     assert peer["KITTI true matches median ↑"] == 3.0
     assert (ours["KITTI Acc. with true matches (%) ↑"], peer["KITTI Acc. with true matches (%) ↑"]) == (50.0, 0.0)
     assert math.isnan(peer["nuScenes Acc. (%) ↑"]) and math.isnan(peer["nuScenes frames"])
-    assert comparison.missing(table, ["KITTI", "nuScenes"]) == {"KITTI": [], "nuScenes": ["peer"]}
-    text = comparison.to_text(table, ROWS, {"KITTI": "k.csv", "nuScenes": "n.csv"})
+    assert paper_table.missing(table, ["KITTI", "nuScenes"]) == {"KITTI": [], "nuScenes": ["peer"]}
+    text = paper_table.to_text(table, ROWS, {"KITTI": "k.csv", "nuScenes": "n.csv"})
     assert "- nuScenes: `n.csv`; not run there: peer" in text
     assert "| peer | 4 | 0.90 ± 0.30 | - | 50.00 | 2 | 0.00 | 3.00 |" in text  # counts whole, numbers to 2 decimals
 
@@ -132,4 +132,4 @@ def test_the_table_command_reads_leaderboards_and_refuses_a_name_given_twice(tmp
 def test_a_label_with_rows_of_two_weights_in_one_board_is_refused_not_guessed():
     board = _board([{"combination": "a > b", "weights": w, ACC: 10.0} for w in ("one@1", "two@2")])
     with pytest.raises(I2PBenchError, match=r"leaderboard of KITTI has 2 rows 'a > b' \(one@1, two@2\)"):
-        comparison.build(ROWS[:1], {"KITTI": board})
+        paper_table.build(ROWS[:1], {"KITTI": board})

@@ -8,10 +8,10 @@ import pandas as pd
 import pytest
 
 from i2pbench import leaderboard, stats, uncertainty
-from i2pbench.compare import compare, format_report, parse_tolerances
-from i2pbench.comparison import TableRow, build
 from i2pbench.components import STAGE_ORDER
 from i2pbench.metric_registry import by_name
+from i2pbench.paper_table import TableRow, build
+from i2pbench.regression_gate import compare, format_report, parse_tolerances
 
 
 def test_the_wilson_interval_of_9_successes_in_20_frames():

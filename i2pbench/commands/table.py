@@ -28,22 +28,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import comparison
-    from ..compare import read_board
+    from .. import paper_table
     from ..errors import I2PBenchError, os_problem
     from ..plugins import default_registry
+    from ..regression_gate import read_board
 
     names = [name for name, _ in args.boards]
     if len(set(names)) != len(names):
         raise I2PBenchError(f"table: a column group's name is given twice ({', '.join(names)})")
     boards = {name: read_board(path, f"leaderboard of {name}") for name, path in args.boards}
-    rows = comparison.preset_rows(default_registry(), args.preset)
-    table = comparison.build(rows, boards)
-    text = comparison.to_text(table, rows, dict(args.boards))
+    rows = paper_table.preset_rows(default_registry(), args.preset)
+    table = paper_table.build(rows, boards)
+    text = paper_table.to_text(table, rows, dict(args.boards))
     print(text)
     if args.out:
         try:
-            written = comparison.write(table, text, args.out)
+            written = paper_table.write(table, text, args.out)
         except OSError as exc:
             raise I2PBenchError(
                 f"--out {args.out}: could not write the table, printed above: {os_problem(exc)}"
