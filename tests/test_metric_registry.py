@@ -7,13 +7,15 @@ import torch
 import toy_plugin
 from test_weights_and_training import LEARNED, Clean
 
-from i2pbench import leaderboard, plugins
+from i2pbench import leaderboard, plugins, uncertainty
 from i2pbench.api import Metric, hookimpl
 from i2pbench.cli import main
 from i2pbench.errors import PluginError
+from i2pbench.metric_registry import by_name
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import build_registry, components_of
 from i2pbench.protocol import Protocol
+from i2pbench.regression_gate import compare, parse_tolerances
 from i2pbench.runs.jobs import frame_key, prepare, upstream_key
 from i2pbench.runs.store import ResultsStore
 from i2pbench.training import TrainConfig, Trainer
@@ -55,6 +57,10 @@ def test_a_plugin_metric_reaches_the_store_the_board_evaluate_and_validation(reg
     assert board[COLUMN].tolist() == [pytest.approx(10 * (2.0 + 0.0 + 2.0) / 3)]  # mean over 3 frames, times 10
     assert main(["evaluate", str(runs / "toy-test"), "--out", str(tmp_path / "again")]) == 0
     assert leaderboard.read(tmp_path / "again.csv")[COLUMN].tolist() == board[COLUMN].tolist()
+    assert f"| {COLUMN} | {uncertainty.ci(by_name()['kp_per_match'])} |" in (tmp_path / "board.md").read_text()
+    worse = board.assign(**{COLUMN: board[COLUMN] + 1.0})  # lower is better: one more keypoint per match, times 10
+    report = compare(worse, board, parse_tolerances("kp_per_match=+0.5"))  # compare checks it under its name
+    assert [(f.what, f.base, f.new) for f in report.findings] == [("kp_per_match", board[COLUMN][0], worse[COLUMN][0])]
 
     torch.manual_seed(0)
     pipeline = Pipeline.build(registry, Combination(LEARNED))

@@ -8,6 +8,7 @@ import pandas as pd
 import pytest
 
 from i2pbench import leaderboard, stats, uncertainty
+from i2pbench.cli import main
 from i2pbench.components import STAGE_ORDER
 from i2pbench.metric_registry import by_name
 from i2pbench.paper_table import TableRow, build
@@ -121,3 +122,11 @@ def test_the_paper_table_says_whether_a_row_differs_from_the_one_above():
     }
     table = build([TableRow("B", "b"), TableRow("A", "a")], boards)
     assert table["KITTI Acc. vs row above"].tolist() == ["", "yes (McNemar p=0.0078)"]  # 8 vs 0: 2/256
+
+
+@pytest.mark.parametrize("alpha", ["0", "1", "-0.1", "5"])
+def test_an_alpha_outside_0_1_is_refused_by_name(alpha, tmp_path, capsys):
+    board = tmp_path / "b.csv"
+    leaderboard.build(_records([1, 0], "row")).to_csv(board, index=False)
+    assert main(["compare", str(board), str(board), "--alpha", alpha]) == 2
+    assert f"--alpha {float(alpha):g}: a significance level between 0 and 1" in capsys.readouterr().err
