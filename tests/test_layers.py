@@ -55,11 +55,11 @@ LAYER_CODE = {
     "attention": (0, "573a14854cd7"),
     "canonical": (0, "0bde0510db44"),
     "frame_norm": (0, "b360eba841ba"),
-    "global_pointnet2": (0, "fbd5c05a1bf3"),  # per-frame call from BatchedStage, outputs unchanged
+    "global_pointnet2": (0, "9a27bc4c8977"),  # per-frame call from BatchedStage, seeded_cloud: outputs unchanged
     "kernels": (0, "880fdfd2b2da"),
     "mlp": (0, "1e8fb86b56f9"),
     "nodes": (0, "57e284127b45"),
-    "pointnet2": (0, "2e905e052cec"),
+    "pointnet2": (0, "717820735e20"),  # seeded_cloud added: outputs unchanged
     "resnet": (0, "38d6e5b5dcfe"),
     "sampling": (0, "dd084e30084c"),
 }

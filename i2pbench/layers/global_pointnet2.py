@@ -20,7 +20,7 @@ from ..errors import StageError
 from ..learned import BatchedStage
 from ..types import Frame, Keypoints3D
 from .frame_norm import FrameMLP
-from .pointnet2 import SetAbstraction, frame_seed, gather, group, interpolate, normalize_points, shared_mlp
+from .pointnet2 import SetAbstraction, gather, group, interpolate, normalize_points, seeded_cloud, shared_mlp
 
 REVISION = 0  # bump when an output of this module changes for the same inputs (see i2pbench.layers)
 NEAREST_NODES = 3  # first-level nodes each keypoint reads (the 3-NN of the feature propagation)
@@ -57,14 +57,6 @@ class GlobalPointNet2Encoder(BatchedStage, Encoder3D):
         self.fp = shared_mlp(c["sa2"]["mlp"][-1] + c["sa1"]["mlp"][-1], tuple(c["fp_mlp"]), g)
         self.head = FrameMLP((c["fp_mlp"][-1] + 4 + 3 * NEAREST_NODES, *c["head_mlp"], local))
 
-    def cloud(self, frame: Frame) -> np.ndarray:
-        """the frame's finite returns, cut to `num_points` by a subset seeded by the frame id -> [N x 4]."""
-        points = frame.points[np.isfinite(frame.points).all(1)]
-        if len(points) > self.conf["num_points"]:
-            rng = np.random.default_rng(frame_seed(frame))
-            points = points[rng.choice(len(points), self.conf["num_points"], replace=False)]
-        return np.asarray(points, np.float32)
-
     def prepare(
         self, frame: Frame, kp3d: Keypoints3D, device: torch.device | str = "cpu", cache: dict | None = None
     ) -> dict[str, torch.Tensor]:
@@ -72,7 +64,7 @@ class GlobalPointNet2Encoder(BatchedStage, Encoder3D):
         across calls (it depends only on distances between points, which the protocol's transform keeps)."""
         if not np.isfinite(kp3d.xyz).all() or not np.isfinite(kp3d.reflectance).all():
             raise StageError(self.label, "3D keypoints with non-finite coordinates or reflectance (corrupt scan?)")
-        cloud = torch.from_numpy(self.cloud(frame)).to(device)
+        cloud = torch.from_numpy(seeded_cloud(frame, self.conf["num_points"])).to(device)
         if len(cloud) == 0:
             raise StageError(self.label, "a scan with no finite point")
         keys = torch.from_numpy(np.c_[kp3d.xyz, kp3d.reflectance].astype(np.float32)).to(device)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import zlib
 from typing import Any
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -162,6 +163,15 @@ def normalize_points(xyz: torch.Tensor, reference: torch.Tensor, canonical: bool
 
 def frame_seed(frame: Frame) -> int:
     return zlib.crc32(f"{frame.dataset}/{frame.frame_id}".encode())
+
+
+def seeded_cloud(frame: Frame, num_points: int) -> np.ndarray:
+    """the frame's finite returns (a corrupt one must not poison the normalisation), cut to `num_points` by a random
+    subset seeded by the frame id (reproducible, and cheap next to FPS on 100k+ points) -> [N x 4] float32."""
+    points = frame.points[np.isfinite(frame.points).all(1)]
+    if len(points) > num_points:
+        points = points[np.random.default_rng(frame_seed(frame)).choice(len(points), num_points, replace=False)]
+    return np.asarray(points, np.float32)
 
 
 GROUPING_KEYS = ("fps1", "ball1", "fps2", "ball2", "up", "edge")

@@ -25,9 +25,10 @@ from torch import nn
 
 from i2pbench.api import BatchedStage, Component, Exchanger, Frame, Keypoints2D, Keypoints3D
 from i2pbench.layers.attention import key_mask
+from i2pbench.layers.pointnet2 import seeded_cloud
 
 from .matching import descriptor_dim_mismatch
-from .official_pointnet2 import OfficialPointNet2, normalize, subsample
+from .official_pointnet2 import OfficialPointNet2, normalize
 from .official_superpoint import OfficialSuperPoint
 
 LAYERS = ("self", "cross") * 6  # cali_glue.py:202
@@ -107,7 +108,7 @@ class OfficialAttention(BatchedStage, Exchanger):
         uv = torch.from_numpy(np.asarray(kp2d.uv, np.float32))
         xyz = torch.from_numpy(np.asarray(kp3d.xyz, np.float32))
         if len(xyz):
-            xyz = normalize(xyz, torch.from_numpy(subsample(frame, self.conf["num_points"])))
+            xyz = normalize(xyz, torch.from_numpy(seeded_cloud(frame, self.conf["num_points"])))
         uv = normalize_pixels(uv, tuple(self.conf["canvas"]))
         return {"uv": uv.to(device), "xyz": xyz.to(device)}
 

@@ -27,7 +27,7 @@ from torch import nn
 
 from i2pbench.api import BatchedStage, Encoder3D, Frame, Keypoints3D, StageError
 from i2pbench.layers import pointnet2
-from i2pbench.layers.pointnet2 import farthest_point_sampling, frame_seed, gather
+from i2pbench.layers.pointnet2 import farthest_point_sampling, frame_seed, gather, seeded_cloud
 
 
 def square_distance(src: torch.Tensor, dst: torch.Tensor) -> torch.Tensor:
@@ -123,15 +123,6 @@ def normalize(points: torch.Tensor, cloud: torch.Tensor) -> torch.Tensor:
     return torch.cat([(points[:, :3] - centre) / scale, points[:, 3:]], 1)
 
 
-def subsample(frame: Frame, num_points: int) -> np.ndarray:
-    """the frame's finite returns, cut to `num_points` by a subset seeded by the frame id -> [N x 4] (the authors'
-    files hold 20,480 points chosen by a script they have not released)."""
-    points = frame.points[np.isfinite(frame.points).all(1)]
-    if len(points) > num_points:
-        points = points[np.random.default_rng(frame_seed(frame)).choice(len(points), num_points, replace=False)]
-    return np.asarray(points, np.float32)
-
-
 class OfficialPointNet2(BatchedStage, Encoder3D):
     """The authors' PointNet++ descriptors of LiDAR edge points (module docstring)."""
 
@@ -157,7 +148,8 @@ class OfficialPointNet2(BatchedStage, Encoder3D):
         """one frame's network inputs: the normalised cloud [N x 4] and edge points [M x 4], and the grouping."""
         if not np.isfinite(kp3d.xyz).all() or not np.isfinite(kp3d.reflectance).all():
             raise StageError(self.label, "3D keypoints with non-finite coordinates or reflectance (corrupt scan?)")
-        cloud = torch.from_numpy(subsample(frame, self.conf["num_points"]))
+        # the authors' files hold 20,480 points chosen by a script they have not released: a seeded subset here
+        cloud = torch.from_numpy(seeded_cloud(frame, self.conf["num_points"]))
         edges = torch.from_numpy(np.c_[kp3d.xyz, kp3d.reflectance].astype(np.float32))
         inputs = {"xyz": normalize(cloud, cloud), "edges": normalize(edges, cloud)}
         grouping = cache.get("grouping") if cache is not None else None

@@ -21,7 +21,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from i2pbench.api import BatchedStage, Encoder3D, Frame, Keypoints3D, StageError
-from i2pbench.layers.pointnet2 import SetAbstraction, frame_seed, group, interpolate, normalize_points, shared_mlp
+from i2pbench.layers.pointnet2 import SetAbstraction, group, interpolate, normalize_points, seeded_cloud, shared_mlp
 
 
 class PointNet2Encoder(BatchedStage, Encoder3D):
@@ -54,17 +54,6 @@ class PointNet2Encoder(BatchedStage, Encoder3D):
             layers += [nn.Linear(cin, cout), nn.LayerNorm(cout), nn.ReLU(inplace=True)]
         self.head = nn.Sequential(*layers, nn.Linear(widths[-1], c["descriptor_dim"]))
 
-    def cloud(self, frame: Frame) -> np.ndarray:
-        """the frame's finite returns, cut to `num_points` by a subset seeded by the frame id -> [N x 4]."""
-        points = frame.points
-        finite = np.isfinite(points).all(1)
-        if not finite.all():  # a corrupt return must not poison the normalisation; clean scans keep their subset
-            points = points[finite]
-        if len(points) > self.conf["num_points"]:
-            rng = np.random.default_rng(frame_seed(frame))
-            points = points[rng.choice(len(points), self.conf["num_points"], replace=False)]
-        return np.asarray(points, np.float32)
-
     def prepare(
         self, frame: Frame, kp3d: Keypoints3D, device: torch.device | str = "cpu", cache: dict | None = None
     ) -> dict[str, torch.Tensor]:
@@ -76,7 +65,7 @@ class PointNet2Encoder(BatchedStage, Encoder3D):
         """
         if not np.isfinite(kp3d.xyz).all() or not np.isfinite(kp3d.reflectance).all():
             raise StageError(self.label, "3D keypoints with non-finite coordinates or reflectance (corrupt scan?)")
-        cloud = torch.from_numpy(self.cloud(frame))
+        cloud = torch.from_numpy(seeded_cloud(frame, self.conf["num_points"]))
         edges = torch.from_numpy(np.c_[kp3d.xyz, kp3d.reflectance].astype(np.float32))
         both = normalize_points(torch.cat([cloud[:, :3], edges[:, :3]]), cloud[:, :3], self.conf["canonical_yaw"])
         inputs = {
