@@ -72,12 +72,14 @@ def run(args: argparse.Namespace) -> int:
     from .. import leaderboard, progress
     from ..devices import resolve_device_name
     from ..errors import DataError, I2PBenchError
+    from ..out_stem import board_stem
     from ..plugins import default_registry
     from ..runs.environment import fix_threads
     from ..runs.invocation import Invocation
     from ..scoring.cards import for_run
     from .run_notes import failure_reasons, latency_reused
 
+    args.out = board_stem(args.out)  # a device, pipe or folder refused before any work; board.csv read as board
     if args.isolate:  # Pipeline.build reads it; worker processes receive pipelines built here
         os.environ["I2PBENCH_ISOLATE"] = args.isolate
     threads = fix_threads(args.threads)

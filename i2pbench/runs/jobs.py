@@ -19,6 +19,7 @@ from ..pipeline import Combination, Pipeline, stage_classes
 from ..plugins import Registry
 from ..protocol import Protocol
 from ..weights import apply_checkpoint, select_checkpoint
+from . import weights_choice
 from .environment import sync_torch_threads
 from .store import versioned_key
 from .upstream import FORMAT
@@ -80,7 +81,10 @@ def prepare(
         checkpoint = select_checkpoint(pipeline, weights, shipped, dataset)
         if checkpoint is not None:
             apply_checkpoint(pipeline, checkpoint)
+        elif weights == "auto" and pipeline.learned_modules():  # say why, when only the extractors differ
+            weights_choice.explain_untrained(pipeline, combination.label, shipped)
         jobs.append(Job(combination, pipeline.to(device).eval(), str(device)))
+    weights_choice.refuse_unused(jobs, weights)
     return jobs
 
 
