@@ -72,16 +72,10 @@ def register_presets(register: Register) -> None:
 
 
 @hookspec
-def register_weights(register: Register) -> None:
-    """Register shipped checkpoint files: `register(path)`. A pipeline whose learned stages fit a checkpoint's
-    recorded combination uses it when the user asks for `--weights auto` (the default)."""
-
-
-@hookspec
 def register_methods(register: Register) -> None:
     """Register learned methods: `register(i2pbench.methods.Method(...))`, one object naming a method's stage
     components, its sizes (named stage configs), its presets (rows built from a size, stages swapped) and its shipped
-    checkpoints. Its presets and weights are registered with it: no `register_presets`/`register_weights` needed."""
+    checkpoints. Its presets and weights are registered with it: no `register_presets` needed."""
 
 
 @hookspec
@@ -113,7 +107,6 @@ HOOK_NAMES: tuple[str, ...] = (
     "register_matchers",
     "register_pose_solvers",
     "register_presets",
-    "register_weights",
     "register_methods",
     "register_corruptions",
     "register_protocols",

@@ -431,8 +431,6 @@ def _register(registry: Registry, pm: pluggy.PluginManager, plugin: str, strict:
                 _resolved(trial._table(kind), name)
     for args, kwargs in _collect(alone, "register_presets"):
         _add_preset(trial, plugin, *args, **kwargs)
-    for (path,), _ in _collect(alone, "register_weights"):
-        trial.weights.append((str(path), plugin))
     for args, kwargs in _collect(alone, "register_methods"):
         _add_method(trial, plugin, *args, **kwargs)
     for (card,), _ in _collect(alone, "register_protocols"):

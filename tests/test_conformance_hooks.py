@@ -66,12 +66,9 @@ class EveryHook:
         register("everything", [{"extractor2d": "grid", "solver": "truth"}], "one of each")
 
     @hookimpl
-    def register_weights(self, register):
-        register("/weights/every-hook.pt")
-
-    @hookimpl
     def register_methods(self, register):
-        register(Method("stub-method", {"extractor2d": "grid", "solver": "truth"}, (Size("one"),)))
+        stages = {"extractor2d": "grid", "solver": "truth"}
+        register(Method("stub-method", stages, (Size("one"),), weights=("/weights/every-hook.pt",)))
 
     @hookimpl
     def register_corruptions(self, register):
