@@ -110,12 +110,16 @@ class _Progress:
             self.listener(self)
 
 
+def pretrained_sources(learned: Mapping[str, Any]) -> list[str]:
+    """`kind: identity` of each learned stage that starts from pretrained weights (its `pretrained_identity`, e.g.
+    `encoder2d: aliked-n16@1a2b3c4d`)."""
+    return [f"{kind}: {c.pretrained_identity}" for kind, c in learned.items() if getattr(c, "pretrained_identity", "")]
+
+
 def untrained_identity(learned: Mapping[str, Any]) -> str:
-    """`untrained`, plus the pretrained weights a learned stage starts from (its `pretrained_identity`, e.g.
-    `aliked-n16@1a2b3c4d`), so a row without a checkpoint still names every weight it ran with."""
-    pretrained = [
-        f"{kind}: {c.pretrained_identity}" for kind, c in learned.items() if getattr(c, "pretrained_identity", "")
-    ]
+    """`untrained`, plus the pretrained weights its learned stages start from, so a row without a checkpoint still
+    names every weight it ran with."""
+    pretrained = pretrained_sources(learned)
     return "untrained" + (f" ({', '.join(pretrained)})" if pretrained else "")
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .errors import WeightsError
-from .pipeline import Pipeline
+from .pipeline import Pipeline, pretrained_sources
 from .provenance import git_commit
 
 if TYPE_CHECKING:  # checkpoints are read and written where a learned stage runs, not by every run
@@ -296,7 +296,10 @@ def apply_checkpoint(pipeline: Pipeline, checkpoint: Checkpoint) -> None:
         except (KeyError, RuntimeError) as exc:
             raise WeightsError(f"checkpoint {checkpoint.path}: cannot load {module.label}: {exc}") from exc
     pipeline.weights_identity = checkpoint.identity
-    pipeline.weights_meta = {**checkpoint.meta, "trained_on": checkpoint.trained_on}  # the summary string wins
+    # the summary string wins; a stage trained over pretrained weights names them, as an untrained row does
+    pretrained = pretrained_sources(pipeline.learned_modules())
+    trained_on = checkpoint.trained_on + (f" (from {', '.join(pretrained)})" if pretrained else "")
+    pipeline.weights_meta = {**checkpoint.meta, "trained_on": trained_on}
 
 
 def select_checkpoint(

@@ -87,6 +87,24 @@ def test_the_weights_identity_is_in_the_config_and_on_an_untrained_row():
     assert pipeline.weights_identity == f"untrained (encoder2d: aliked-n16@{digest[:8]})"
 
 
+@needs_weights
+def test_a_checkpoint_trained_over_the_encoder_names_its_pretrained_weights_on_the_row(tmp_path):
+    from i2pbench_pretrained.weights import sha256, weight_file
+
+    from i2pbench.weights import apply_checkpoint, load_checkpoint, save_checkpoint
+
+    digest = sha256(weight_file("aliked-n16.pth"))[:8]
+    registry = default_registry()
+    (row,) = registry.preset_rows("edgeregnet-aliked")
+    names = {k: v for k, v in row.items() if k not in ("confs", "variant")}
+    build = lambda: Pipeline.build(registry, Combination(names, row["confs"], row["variant"]))  # noqa: E731
+    path = save_checkpoint(tmp_path / "over-aliked.pt", build(), steps=3, trained_on={"dataset": "d", "split": "s"})
+    pipeline = build()
+    apply_checkpoint(pipeline, load_checkpoint(path))
+    assert pipeline.weights_identity.startswith("over-aliked@")
+    assert pipeline.weights_meta["trained_on"] == f"d/s, 3 steps (from encoder2d: aliked-n16@{digest})"
+
+
 def test_the_ablation_preset_puts_aliked_in_each_methods_row():
     rows = default_registry().preset_rows("pretrained-ablation")
     encoders = [row["encoder2d"] for row in rows]
