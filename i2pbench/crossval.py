@@ -12,8 +12,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import pandas as pd
 
-from .leaderboard import ACC_SKILL, MIN_TRUE_MATCHES, TRUE_MATCHES
-from .metrics import success
+from .leaderboard import ACC_SKILL, TRUE_MATCHES
+from .metric_registry import BUILTIN, by_name
 from .protocol import Protocol
 
 BOOTSTRAP_DRAWS = 2000
@@ -44,10 +44,9 @@ def scene_bootstrap(
 
 
 def registered(records: pd.DataFrame, protocol: Protocol) -> np.ndarray:
-    """[F] 1.0 where a frame is registered with true matches (inside the thresholds and >= MIN_TRUE_MATCHES true
-    matches: the leaderboard's 'Acc. with true matches'), else 0.0."""
-    won = success(records["rte_m"], records["rre_deg"], protocol).to_numpy()
-    return (won & (records["n_true_matches"].to_numpy(dtype=float) >= MIN_TRUE_MATCHES)).astype(float)
+    """[F] 1.0 where a frame is registered with true matches, else 0.0: the per-frame values of the leaderboard's
+    'Acc. with true matches' metric (metric_registry), not a second definition of it."""
+    return by_name(BUILTIN)["skill_acc_pct"].per_frame(records, protocol)
 
 
 def cross_validated(
