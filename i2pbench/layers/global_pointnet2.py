@@ -45,8 +45,6 @@ class GlobalPointNet2Encoder(BatchedStage, Encoder3D):
 
     def __init__(self, conf: dict[str, Any] | None = None) -> None:
         super().__init__(conf)
-        for sa in ("sa1", "sa2"):  # a partial override of a set-abstraction layer keeps the other defaults
-            self.conf[sa] = {**self.default_conf[sa], **self.conf[sa]}
         c, g = self.conf, self.conf["groups"]
         local = c["descriptor_dim"] - c["global_dim"]
         if local < 1 or c["global_mlp"][-1] != c["global_dim"]:

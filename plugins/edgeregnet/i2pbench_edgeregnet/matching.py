@@ -94,7 +94,6 @@ class OptimalMatcher(BatchedStage, Matcher):
 
     def __init__(self, conf: dict[str, Any] | None = None) -> None:
         super().__init__(conf)
-        self.conf["weights"] = {**self.default_conf["weights"], **self.conf["weights"]}  # partial override
         dim = self.conf["descriptor_dim"]
         self.proj2d, self.proj3d = nn.Linear(dim, dim), nn.Linear(dim, dim)
         self.matchability2d, self.matchability3d = nn.Linear(dim, 1), nn.Linear(dim, 1)

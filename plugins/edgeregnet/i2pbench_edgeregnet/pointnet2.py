@@ -42,8 +42,6 @@ class PointNet2Encoder(BatchedStage, Encoder3D):
 
     def __init__(self, conf: dict[str, Any] | None = None) -> None:
         super().__init__(conf)
-        for sa in ("sa1", "sa2"):  # a partial override of a set-abstraction layer keeps the other defaults
-            self.conf[sa] = {**self.default_conf[sa], **self.conf[sa]}
         c, g = self.conf, self.conf["groups"]
         self.sa1 = SetAbstraction(**c["sa1"], cin=1, groups=g)
         self.sa2 = SetAbstraction(**c["sa2"], cin=c["sa1"]["mlp"][-1], groups=g)
