@@ -3,7 +3,7 @@
 import pytest
 from i2pbench_edgeregnet import configs
 from i2pbench_edgeregnet.attention import AttentionExchanger
-from i2pbench_edgeregnet.matching import LightGlueMatcher
+from i2pbench_edgeregnet.matching import OptimalMatcher
 from i2pbench_edgeregnet.pointnet2 import PointNet2Encoder
 from i2pbench_edgeregnet.superpoint import SuperPointEncoder
 
@@ -16,7 +16,7 @@ def test_components_are_registered(monkeypatch):
     assert registry.component("encoder2d", "superpoint-cnn") is SuperPointEncoder
     assert registry.component("encoder3d", "pointnet2") is PointNet2Encoder
     assert registry.component("exchanger", "attention") is AttentionExchanger
-    assert registry.component("matcher", "lightglue") is LightGlueMatcher
+    assert registry.component("matcher", "lightglue") is OptimalMatcher
     assert registry.owner("matcher", "lightglue") == "edgeregnet"
 
 
@@ -26,13 +26,13 @@ SMALL = {"descriptor_dim": 64}
 def test_matching_sizes_are_accepted():
     upstream = {"encoder2d": SuperPointEncoder(SMALL), "encoder3d": PointNet2Encoder(SMALL)}
     upstream["exchanger"] = AttentionExchanger({**SMALL, "num_blocks": 1})
-    assert LightGlueMatcher(SMALL).check_compatible(upstream) is None
+    assert OptimalMatcher(SMALL).check_compatible(upstream) is None
 
 
 @pytest.mark.parametrize("kind", ["encoder2d", "encoder3d"])
 def test_a_matcher_refuses_an_encoder_of_another_size(kind):
     other = {"encoder2d": SuperPointEncoder, "encoder3d": PointNet2Encoder}[kind](SMALL)
-    reason = LightGlueMatcher().check_compatible({kind: other})
+    reason = OptimalMatcher().check_compatible({kind: other})
     assert reason == f"matcher 'lightglue' has descriptor_dim 256 but {kind} {other.name!r} has descriptor_dim 64"
 
 
@@ -46,7 +46,7 @@ def test_shipped_configs_build_and_agree(variant):
     conf = getattr(configs, variant)
     classes = {"encoder2d": SuperPointEncoder, "encoder3d": PointNet2Encoder, "exchanger": AttentionExchanger}
     upstream = {kind: cls(conf[kind]) for kind, cls in classes.items()}
-    assert LightGlueMatcher(conf["matcher"]).check_compatible(upstream) is None
+    assert OptimalMatcher(conf["matcher"]).check_compatible(upstream) is None
     assert {kind: cls.name for kind, cls in classes.items()} | {"matcher": "lightglue"} == configs.COMPONENTS
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 from i2pbench_edgeregnet.attention import AttentionExchanger
-from i2pbench_edgeregnet.matching import LightGlueMatcher
+from i2pbench_edgeregnet.matching import OptimalMatcher
 from i2pbench_edgeregnet.pointnet2 import PointNet2Encoder
 from i2pbench_edgeregnet.superpoint import SuperPointEncoder
 
@@ -60,7 +60,7 @@ def tiny_modules() -> list[torch.nn.Module]:
         SuperPointEncoder(TINY["encoder2d"]),
         PointNet2Encoder(TINY["encoder3d"]),
         AttentionExchanger(TINY["exchanger"]),
-        LightGlueMatcher(TINY["matcher"]),
+        OptimalMatcher(TINY["matcher"]),
     ]
 
 

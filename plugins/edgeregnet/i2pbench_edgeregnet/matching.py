@@ -172,6 +172,3 @@ class OptimalMatcher(BatchedStage, Matcher):
             masks=(mask2d, mask3d),
             weights=(w["fov"], w["sigma"], w["P"]),
         )
-
-
-LightGlueMatcher = OptimalMatcher  # the class's former name, for code that imports it
