@@ -51,28 +51,14 @@ class LearnedComponent(Component, torch.nn.Module):
 
 
 class BatchedStage(LearnedComponent):
-    """A learned stage that runs a padded batch of frames: how training takes several frames at once, and, a batch of
-    one, how the stage runs a single frame, so both run the same code.
+    """A learned stage that runs padded batches of frames: training takes several at once, and the per-frame call of a
+    run is derived from the same code, a batch of one. It declares `prepare` and a batched `forward` (and, for a
+    trainable matcher, `batch_loss`); docs/writing-a-plugin.md, section 12, spells the contract out.
 
-    A stage declares three things (a matcher that trains, a fourth):
-    - `prepare(frame, *keypoints, device="cpu", cache=None) -> {name: tensor}`: one frame's network inputs, computed
-      on the CPU (in a DataLoader worker while training). The keypoints are those of its kind (`keypoints_of`):
-      `kp2d` for an encoder2d, `kp3d` for an encoder3d, `kp2d, kp3d` for an exchanger or a matcher. `cache` is a
-      per-frame dict kept across steps and runs for what does not depend on the protocol's transform (point
-      grouping, say): the stage fills it, the caller persists it. A matcher's `prepare` gives its supervision and
-      sees the ground truth (training only);
-    - `forward` on those inputs collated into a padded batch (`batching.collate`: a leading B, tensors padded at the
-      end), with keypoint masks [B x M] (True: a real keypoint) where padding matters:
-      encoder: `forward(inputs) -> [B x M x D]`;
-      exchanger: `forward(inputs, d2 [B x M2 x D], d3 [B x M3 x D], mask2d, mask3d) -> (d2, d3)`;
-      matcher: `forward(...)` on descriptors, as the matcher chooses;
-    - the per-frame stage call, derived here from the two for encoders (prepare, a batch of one, forward) and
-      exchangers (the same, after the checks every exchanger makes); a matcher writes its own `__call__`, which
-      turns its forward's scores into `Matches`, and reaches `forward` through `self.batched`;
-    - a trainable matcher: `batch_loss(inputs, features, mask2d, mask3d) -> (loss, {term: float})`, the mean over
-      the batch's frames of its loss on `prepare`d supervision and batched descriptors; `loss` on one frame is
-      derived from it.
-    A learned stage without this contract still trains: batching.py runs it frame by frame inside the batch.
+    `forward` takes `prepare`d inputs collated into a batch (`batching.collate`: a leading B, tensors zero-padded at
+    the end) and keypoint masks [B x M] (True: real) where padding matters. An encoder's: `forward(inputs) ->
+    [B x M x D]`; an exchanger's: `forward(inputs, d2, d3, mask2d, mask3d) -> (d2, d3)`; a matcher's runs on
+    descriptors as it needs, and its own `__call__` turns the scores into `Matches`.
     """
 
     def prepare(
@@ -82,11 +68,15 @@ class BatchedStage(LearnedComponent):
         device: torch.device | str = "cpu",
         cache: dict | None = None,
     ) -> dict[str, torch.Tensor]:
+        """one frame's network inputs (no batch dim), made on the CPU; `keypoints` are those of the stage's kind
+        (`keypoints_of`). `cache`, a per-frame dict kept across steps and runs, holds what the protocol's transform
+        does not change (point grouping): the stage fills it. Only a matcher's sees the ground truth (training)."""
         raise NotImplementedError
 
     def batch_loss(
         self, inputs: Mapping[str, torch.Tensor], features: Features, mask2d: torch.Tensor, mask3d: torch.Tensor
     ) -> tuple[torch.Tensor, dict[str, float]]:
+        """a trainable matcher's loss on `prepare`d supervision and batched descriptors, the mean over the frames."""
         raise NotImplementedError(f"{self.label} does not train")
 
     def keypoints_of(self, kp2d: Keypoints2D, kp3d: Keypoints3D) -> tuple[Keypoints2D | Keypoints3D, ...]:
@@ -98,6 +88,8 @@ class BatchedStage(LearnedComponent):
         return {k: v[None] for k, v in self.prepare(frame, *keypoints, device=self.device).items()}
 
     def __call__(self, frame: Frame, *args: Any) -> Any:
+        """the per-frame stage call of an encoder (`prepare`, a batch of one, `forward`) or an exchanger (the same,
+        after the checks every exchanger makes: descriptors on both sides, `descriptor_dim` wide)."""
         if self.kind in ("encoder2d", "encoder3d"):
             return self.batched(self.one(frame, *args))[0].float()
         if self.kind == "exchanger":
