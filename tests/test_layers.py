@@ -55,7 +55,7 @@ LAYER_CODE = {
     "attention": (0, "573a14854cd7"),
     "canonical": (0, "0bde0510db44"),
     "frame_norm": (0, "b360eba841ba"),
-    "global_pointnet2": (0, "9a27bc4c8977"),  # per-frame call from BatchedStage, seeded_cloud: outputs unchanged
+    "global_pointnet2": (0, "8747a5b05659"),  # BatchedStage, seeded_cloud, deep merge_conf: same outputs
     "kernels": (0, "880fdfd2b2da"),
     "mlp": (0, "1e8fb86b56f9"),
     "nodes": (0, "57e284127b45"),
