@@ -91,9 +91,10 @@ def positive_float(text: str) -> float:
     return value
 
 
-def add_data_options(p: argparse.ArgumentParser) -> None:
+def add_data_options(p: argparse.ArgumentParser, split: str = "test", frames: bool = True) -> None:
+    """--dataset and its --split (default `split`), root, config and split file; `frames`: --frames N too."""
     p.add_argument("--dataset", default="synthetic", help="dataset name (kitti, nuscenes, synthetic, ...)")
-    p.add_argument("--split", default="test")
+    p.add_argument("--split", default=split)
     p.add_argument("--data-root", help="dataset root directory (else I2PBENCH_<NAME>_ROOT)")
     p.add_argument(
         "--data-conf",
@@ -101,9 +102,10 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
         default=[],
         type=yaml_setting,
         metavar="KEY=VALUE",
-        help="dataset config (YAML values; dotted keys nest, e.g. frames.test=3)",
+        help=f"dataset config (YAML values; dotted keys nest, e.g. frames.{split}=3)",
     )
-    p.add_argument("--frames", type=positive_int, default=None, help="use only the first N frames of the split")
+    if frames:
+        p.add_argument("--frames", type=positive_int, default=None, help="use only the first N frames of the split")
     add_split_options(p)
 
 

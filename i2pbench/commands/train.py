@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 from .options import (
     add_conf_option,
-    add_split_options,
+    add_data_options,
     add_stage_options,
     non_negative_int,
     parse_data_conf,
@@ -19,7 +19,6 @@ from .options import (
     positive_int,
     split_conf,
     stage_choices,
-    yaml_setting,
 )
 
 if TYPE_CHECKING:  # the CLI starts without importing the training code
@@ -32,8 +31,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_stage_options(p, "{kind} name ('none' skips)", many=False)
     p.add_argument("--preset", help="start from this preset's first combination (default: 'default')")
     add_conf_option(p)
-    p.add_argument("--dataset", default="synthetic")
-    p.add_argument("--split", default="train")
+    add_data_options(p, split="train", frames=False)  # the train and val splits of --dataset
     p.add_argument(
         "--mix",
         action="append",
@@ -43,16 +41,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--val-split", help="split of --dataset for the periodic validation (default val; 'none' skips)")
     p.add_argument("--val-dataset", metavar="DATASET:SPLIT[@ROOT]", help="validate on this split instead")
-    p.add_argument("--data-root", help="dataset root directory (else I2PBENCH_<NAME>_ROOT)")
-    p.add_argument(
-        "--data-conf",
-        action="append",
-        default=[],
-        type=yaml_setting,
-        metavar="KEY=VALUE",
-        help="dataset config for the train and val splits (e.g. frames.train=20000)",
-    )
-    add_split_options(p)  # for the train and val splits of --dataset
     p.add_argument(
         "--init-2d",
         metavar="FILE",
