@@ -234,14 +234,12 @@ def _init_2d(pipeline, path: str) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     import torch
-    from tqdm import tqdm
 
     from ..devices import resolve_device
     from ..pipeline import Pipeline
     from ..plugins import default_registry
     from ..runs.environment import fix_threads
-    from ..training import Trainer, data_identity, steps_for_epochs, training_meta
-    from ..weights import data_label
+    from ..training import Trainer, steps_for_epochs, training_meta
 
     check_out(Path(args.out), args.force)
     mix_specs, val_spec = _source_specs(args)
@@ -258,35 +256,51 @@ def run(args: argparse.Namespace) -> int:
         config = replace(config, steps=steps_for_epochs(args.epochs, len(train_set.frame_ids()), config, world))
     out = Path(args.out)
     trainer = Trainer(pipeline, train_set, val_set, out, config, mix)
-    resumed = trainer.resume()
-    main = trainer.dist.main
-    if main:
-        data = data_label(data_identity(train_set, mix))
-        print(
-            f"training {pipeline.combination.label} ({pipeline.model_size_mb():.2f} MB) on {data}, "
-            f"effective batch {trainer.dist.world * config.accumulate * config.batch_size}"
-            f"{f'; {resumed}' if resumed else ''}"
-            f"{f'; compiled {len(trainer.compiled)} blocks ({args.compile})' if trainer.compiled else ''}",
-            file=sys.stderr,
-        )
-    bar = tqdm(total=config.steps, initial=trainer.step, disable=args.quiet or not main, file=sys.stderr, unit="step")
-
-    def report(step: int, terms: dict) -> None:
-        if any(k.startswith("val_") for k in terms):
-            tqdm.write(
-                " ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in terms.items()),
-                file=sys.stderr,
-            )
-            return
-        bar.update(step - bar.n)
-        bar.set_postfix({k: f"{v:.3f}" for k, v in terms.items() if isinstance(v, float)}, refresh=False)
-
+    _announce(trainer, train_set, mix, trainer.resume())
+    bar = _StepBar(config.steps, trainer.step, disable=args.quiet or not trainer.dist.main)
     log = Path(args.log) if args.log else out.with_name(out.name + ".log.jsonl")
     board = Path(args.tensorboard) if args.tensorboard else None
-    trainer.run(
-        {**training_meta(train_set, config, trainer.dist.world, mix), **init}, report, log=log, tensorboard=board
-    )
+    meta = {**training_meta(train_set, config, trainer.dist.world, mix), **init}
+    trainer.run(meta, bar, log=log, tensorboard=board)
     bar.close()
-    if main:
+    if trainer.dist.main:
         print(f"checkpoint: {args.out} (step {trainer.step}); validation: {trainer.validation}", file=sys.stderr)
     return 0
+
+
+def _announce(trainer, train_set, mix, resumed: str) -> None:
+    """What trains, on what data, at which effective batch, resumed or compiled (by rank 0 only)."""
+    from ..training import data_identity
+    from ..weights import data_label
+
+    if not trainer.dist.main:
+        return
+    pipeline, config = trainer.pipeline, trainer.config
+    compiled = f"; compiled {len(trainer.compiled)} blocks ({config.compile})" if trainer.compiled else ""
+    print(
+        f"training {pipeline.combination.label} ({pipeline.model_size_mb():.2f} MB) on "
+        f"{data_label(data_identity(train_set, mix))}, "
+        f"effective batch {trainer.dist.world * config.accumulate * config.batch_size}"
+        f"{f'; {resumed}' if resumed else ''}{compiled}",
+        file=sys.stderr,
+    )
+
+
+class _StepBar:
+    """The training's report callable: steps and loss terms on a progress bar, validation results as lines."""
+
+    def __init__(self, total: int, initial: int, disable: bool) -> None:
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=total, initial=initial, disable=disable, file=sys.stderr, unit="step")
+
+    def __call__(self, step: int, terms: dict) -> None:
+        if any(k.startswith("val_") for k in terms):
+            line = " ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in terms.items())
+            self.bar.write(line, file=sys.stderr)
+            return
+        self.bar.update(step - self.bar.n)
+        self.bar.set_postfix({k: f"{v:.3f}" for k, v in terms.items() if isinstance(v, float)}, refresh=False)
+
+    def close(self) -> None:
+        self.bar.close()
