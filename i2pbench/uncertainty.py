@@ -3,7 +3,7 @@
 Each registered metric that aggregates a proportion or a mean gets `<label> 95% low` / `<label> 95% high` (Wilson,
 or a seeded bootstrap: `stats`), in the aggregate's units, and `<label> 95% CI`, the two as text "[low, high]". So
 that two boards (a new run and a committed baseline) can be compared frame by frame without their stores, a row
-also keeps its per-frame values: `per frame <name>`, space-separated in the order of its sorted frame ids, with
+also keeps its per-frame values: `per frame <name>`, "[v1 v2 ...]" in the order of its sorted frame ids, with
 `frames digest` naming that set of frames; two rows are paired only when their digests agree.
 """
 
@@ -70,10 +70,11 @@ def cells(records: pd.DataFrame, protocol: Protocol, metrics: Iterable[Metric]) 
         return out
     order = np.argsort(records["frame_id"].astype(str).to_numpy(), kind="stable")
     ids = records["frame_id"].astype(str).to_numpy()[order]
-    out[DIGEST] = hashlib.sha256("\n".join(ids).encode()).hexdigest()[:16]
+    out[DIGEST] = "sha256:" + hashlib.sha256("\n".join(ids).encode()).hexdigest()[:16]  # text, never a number
     for metric in chosen:
         values = metric.per_frame(records, protocol)
-        out[per_frame(metric)] = "" if values is None else " ".join(f"{v:.6g}" for v in np.asarray(values)[order])
+        text = "" if values is None else " ".join(f"{v:.6g}" for v in np.asarray(values)[order])
+        out[per_frame(metric)] = f"[{text}]"  # bracketed: one frame's "1" stays text through a CSV
     return out
 
 
@@ -81,7 +82,7 @@ def _values(row: pd.Series, metric: Metric) -> np.ndarray | None:
     text = row.get(per_frame(metric))
     if not isinstance(text, str):
         return None
-    return np.array(text.split(), dtype=float)
+    return np.array(text.strip("[]").split(), dtype=float)
 
 
 def paired(a: pd.Series, b: pd.Series, metric: Metric) -> stats.Paired | None:
@@ -90,7 +91,7 @@ def paired(a: pd.Series, b: pd.Series, metric: Metric) -> stats.Paired | None:
     if not isinstance(a.get(DIGEST), str) or a.get(DIGEST) != b.get(DIGEST):
         return None
     va, vb = _values(a, metric), _values(b, metric)
-    if va is None or vb is None or len(va) != len(vb):
+    if va is None or vb is None or not len(va) or len(va) != len(vb):
         return None
     if metric.aggregate == "proportion":
         return stats.mcnemar(va, vb)
