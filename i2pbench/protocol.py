@@ -12,6 +12,11 @@ keeps the true one beside it (`Frame.K_gt`). A corruption that moves the cloud (
 draws) gives its rigid motion M to the protocol, which moves the cloud by T_rand @ M and keeps the truth true:
 T_gt = T_cam_lidar @ inv(T_rand @ M). The clean card is the card as it was before corruptions existed, so clean
 results keep their identity and cache keys.
+
+A protocol card other than the default (i2pbench.scoring.cards) may give its stages other inputs than the dataset's
+frame: an image cut, resized and cropped (K alike), a voxel grid and a sampled point count (protocol_inputs), and a
+T_rand drawn in the camera frame, the cloud first taken there (T_gt = inv(T_rand), T_init = I). Each such field
+stays off the card at its default, so the default card's identity never moved.
 """
 
 from __future__ import annotations
@@ -34,6 +39,10 @@ if TYPE_CHECKING:
 CORRUPTION_FIELDS = ("corruption", "severity")
 CARD_FIELDS = ("name", "version")  # which protocol card (i2pbench.scoring.cards); left out for the default
 DEFAULT_NAME, DEFAULT_VERSION = "edgeregnet", 1
+# what a card may give its stages other than the dataset's frame (protocol_inputs); each left off the card at its
+# default, so the default card keeps its identity
+INPUT_DEFAULTS = {"image_top": 0, "image_scale": 1.0, "image_crop_h": 0, "image_crop_w": 0, "points": 0,
+                  "voxel_m": 0.0, "pose_frame": "lidar"}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -52,6 +61,13 @@ class Protocol:
     severity: int = 0  # the corruption's severity, 1..its number of levels
     name: str = DEFAULT_NAME  # the protocol card this protocol follows (`run --protocol NAME`)
     version: int = DEFAULT_VERSION  # that card's version
+    image_top: int = 0  # rows cut off the image's top first
+    image_scale: float = 1.0  # then the image resized by this (K with it)
+    image_crop_h: int = 0  # then centre-cropped to this height and width; 0: not cropped
+    image_crop_w: int = 0
+    points: int = 0  # points sampled from the scan (after the voxel grid); 0: every point
+    voxel_m: float = 0.0  # one point (the mean) per voxel of this side; 0: no grid
+    pose_frame: str = "lidar"  # T_rand's frame: lidar (yaw about z, t on x, y) or camera (about y, t on x, z)
     corrupter: Corruption | None = field(default=None, compare=False, repr=False)  # the component, when resolved
 
     def card(self) -> dict:
@@ -61,6 +77,7 @@ class Protocol:
         card = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "corrupter"}
         left_out = () if self.corruption else CORRUPTION_FIELDS
         left_out += CARD_FIELDS if (self.name, self.version) == (DEFAULT_NAME, DEFAULT_VERSION) else ()
+        left_out += tuple(k for k, v in INPUT_DEFAULTS.items() if card[k] == v)
         return {k: v for k, v in card.items() if k not in left_out}
 
     def identity(self) -> str:
@@ -105,11 +122,29 @@ class Protocol:
         return corruption.displacement(sensor, self.severity, rng)
 
     def random_transform(self, dataset: str, frame_id: str) -> np.ndarray:
-        """T_rand for one frame: a yaw about LiDAR z and an x/y translation."""
+        """T_rand for one frame: a yaw about LiDAR z and an x/y translation (in the camera frame: about camera y,
+        on x and z, the peers' 'CAM coordinate' draw)."""
         rng = self.rng(dataset, frame_id)
         yaw = rng.uniform(-self.rotation_range_rad, self.rotation_range_rad)
         tx, ty = rng.uniform(-self.translation_range_m, self.translation_range_m, size=2)
+        if self.pose_frame == "camera":
+            c, s = np.cos(yaw), np.sin(yaw)
+            return make_transform(np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]), np.array([tx, 0.0, ty]))
         return make_transform(rot_z(yaw), np.array([tx, ty, 0.0]))
+
+    def resamples(self) -> bool:
+        """Whether the card gives its stages another image or cloud than the dataset's (protocol_inputs)."""
+        return any(getattr(self, k) != v for k, v in INPUT_DEFAULTS.items() if k != "pose_frame")
+
+    def resample(self, seen: SensorFrame, K_true: np.ndarray) -> tuple[SensorFrame, np.ndarray]:
+        """The (corrupted) frame as the card's stages see it, and the true K transformed as its image was."""
+        from .protocol_inputs import image_geometry, resample, transform_K
+
+        crop = (self.image_crop_h, self.image_crop_w) if self.image_crop_h else None
+        _, offset = image_geometry(seen.image.shape, self.image_top, self.image_scale, crop)
+        rng = self.rng(seen.dataset, seen.frame_id, "inputs")
+        seen = resample(seen, self.image_top, self.image_scale, crop, self.voxel_m, self.points, rng)
+        return seen, transform_K(K_true, self.image_top, self.image_scale, offset)
 
     def apply(self, sensor: SensorFrame) -> Frame:
         """Turn a dataset frame into a registration problem (corrupted, under a corruption) with its ground truth.
@@ -119,10 +154,14 @@ class Protocol:
         if not np.isfinite(sensor.points).all():
             where = sensor.source or f"{sensor.dataset} frame {sensor.frame_id}"
             raise DataError(f"{where}: the scan contains NaN or infinite values; datasets must drop such returns")
-        seen = self.corrupt(sensor)
+        seen, K_true = self.corrupt(sensor), sensor.K
+        if self.resamples():
+            seen, K_true = self.resample(seen, K_true)
         T_rand = self.random_transform(sensor.dataset, sensor.frame_id)
         M = self.motion(sensor)
         moved = T_rand if M is None else T_rand @ M  # None: exactly the clean T_rand, bit for bit
+        camera = self.pose_frame == "camera"  # the cloud taken into the camera frame, then moved there
+        moved = (T_rand @ sensor.T_cam_lidar if M is None else T_rand @ sensor.T_cam_lidar @ M) if camera else moved
         points = seen.points.copy()
         points[:, :3] = transform_points(moved, seen.points[:, :3].astype(np.float64)).astype(np.float32)
         return Frame(
@@ -135,6 +174,6 @@ class Protocol:
             K=seen.K,
             T_gt=sensor.T_cam_lidar @ invert(moved),
             match_radius_px=sensor.match_radius_px,
-            T_init=sensor.T_cam_lidar,
-            K_gt=None if np.array_equal(seen.K, sensor.K) else sensor.K,
+            T_init=np.eye(4) if camera else sensor.T_cam_lidar,  # camera <- the unmoved cloud's frame
+            K_gt=None if np.array_equal(seen.K, K_true) else K_true,
         )

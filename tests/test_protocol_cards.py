@@ -152,13 +152,19 @@ def test_the_default_card_is_the_protocol_every_stored_result_was_made_under():
     assert Protocol(**corri2p.card()) == corri2p  # read back from an invocation record
 
 
-def test_only_the_default_card_has_the_inputs_a_run_can_give_today():
-    assert cards.find("edgeregnet").unmet("kitti") == []
-    unmet = cards.find("corri2p").unmet("kitti")
-    assert "image: resized x0.5, centre crop 160 x 512 (i2pbench: full resolution)" in unmet
-    assert "points: 40960 sampled (i2pbench: the whole scan)" in unmet
-    assert any(u.startswith("sweeps: 3 sweeps accumulated") for u in cards.find("cofii2p").unmet("nuscenes"))
+def test_a_run_can_give_every_card_its_kitti_inputs_but_deepi2ps_and_no_accumulated_sweeps():
+    assert [c.name for c in cards.BUILTIN if not c.unmet("kitti")] == ["edgeregnet", "corri2p", "vp2p-match",
+                                                                         "cofii2p", "icl"]  # fmt: skip
+    assert cards.find("deepi2p").unmet("kitti") == [
+        "sweeps: 3 sweeps accumulated (i2pbench: the frame's sweep)",
+        "frame: another frame's image, up to 10 m away (i2pbench: the scan's own frame)",
+    ]
+    assert cards.find("cofii2p").unmet("nuscenes") == ["sweeps: 3 sweeps accumulated (i2pbench: the frame's sweep)"]
     assert cards.find("icl").unmet("nuscenes") == ["ICL (ICL-I2PReg)'s code has no nuscenes pipeline to follow"]
+    corri2p = cards.find("corri2p").protocol(0, "kitti").card()
+    assert {k: corri2p[k] for k in ("image_scale", "image_crop_h", "image_crop_w", "points", "voxel_m", "pose_frame")} \
+        == {"image_scale": 0.5, "image_crop_h": 160, "image_crop_w": 512, "points": 40960, "voxel_m": 0.1,
+            "pose_frame": "camera"}  # fmt: skip
 
 
 def test_every_builtin_card_cites_its_code_at_a_pinned_commit():

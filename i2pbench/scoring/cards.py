@@ -42,35 +42,47 @@ SOURCES = {  # repository -> the commit every line number below refers to
 class Inputs:
     """What the stages are given on one dataset family."""
 
-    image_scale: float = 1.0  # the image resized by this factor (K scaled with it)
+    image_top: int = 0  # rows cut off the image's top first
+    image_scale: float = 1.0  # then the image resized by this factor (K scaled with it)
     image_crop: tuple[int, int] | None = None  # then centre-cropped to (H, W); None: the whole image
     points: int | None = None  # points sampled from the scan; None: every point the dataset delivers
     voxel_m: float | None = None  # voxel-grid downsampling before sampling; None: none
-    sweeps: int = 1  # sweeps accumulated into one scan (nuScenes); 1: the keyframe's sweep alone
+    sweeps: int = 1  # sweeps accumulated into one scan; 1: the frame's own sweep alone
+    other_frame: bool = False  # the image is another frame's (DeepI2P: up to 10 m away), not the scan's own
     pose_frame: str = "lidar"  # the frame the random transform acts in: lidar (yaw about z, t on x, y) or camera
     rotation_range_rad: float = TAU  # yaw ~ U[-r, r]
     translation_range_m: float = 10.0  # each horizontal translation ~ U[-t, t]; 0 on the vertical axis
 
     def describe(self) -> dict[str, str]:
         """Each input in words, for the differences a refusal lists."""
+        top = f"top {self.image_top} rows cut, " if self.image_top else ""
         crop = "" if self.image_crop is None else f", centre crop {self.image_crop[0]} x {self.image_crop[1]}"
-        image = "full resolution" if self.image_scale == 1.0 and self.image_crop is None else ""
+        full = self.image_scale == 1.0 and self.image_crop is None and not self.image_top
         return {
-            "image": image or f"resized x{self.image_scale:g}{crop}",
+            "image": "full resolution" if full else f"{top}resized x{self.image_scale:g}{crop}",
+            "frame": "another frame's image, up to 10 m away" if self.other_frame else "the scan's own frame",
             "points": "the whole scan" if self.points is None else f"{self.points} sampled",
             "voxel": "none" if self.voxel_m is None else f"{self.voxel_m:g} m grid",
-            "sweeps": "the keyframe's sweep" if self.sweeps == 1 else f"{self.sweeps} sweeps accumulated",
+            "sweeps": "the frame's sweep" if self.sweeps == 1 else f"{self.sweeps} sweeps accumulated",
             "pose": f"{self.pose_frame} frame: yaw U[±{math.degrees(self.rotation_range_rad):g}°], horizontal "
             f"t U[±{self.translation_range_m:g} m]",
         }
 
-    def differences(self, other: Inputs) -> list[str]:
-        """'what: this (other: that)' for every input that differs."""
+    def differences(self, other: Inputs, label: str = "i2pbench") -> list[str]:
+        """'what: this (label: other's)' for every input that differs."""
         mine, theirs = self.describe(), other.describe()
-        return [f"{key}: {mine[key]} (i2pbench: {theirs[key]})" for key in mine if mine[key] != theirs[key]]
+        return [f"{key}: {mine[key]} ({label}: {theirs[key]})" for key in mine if mine[key] != theirs[key]]
 
 
-NATIVE = Inputs()  # what i2pbench's datasets and Protocol.apply deliver today
+NATIVE = Inputs()  # the dataset's frame as it is: the default card's inputs
+
+
+def unsupported(inputs: Inputs) -> list[str]:
+    """The inputs i2pbench cannot make yet (Protocol.apply makes the image cut, resize and crop, the voxel grid,
+    the point sampling and camera-frame poses; not accumulated sweeps or another frame's image)."""
+    described = inputs.describe()
+    return [f"{key}: {described[key]} (i2pbench: {NATIVE.describe()[key]})" for key, needed in
+            (("sweeps", inputs.sweeps != 1), ("frame", inputs.other_frame)) if needed]  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -91,21 +103,27 @@ class ProtocolCard:
         synthetic streets mimic KITTI)."""
         return self.nuscenes if dataset.startswith("nuscenes") else self.kitti
 
-    def protocol(self, seed: int = 0) -> Protocol:
-        """The Protocol a run under this card uses: thresholds from its rules, its name and version on the card."""
+    def protocol(self, seed: int = 0, dataset: str = "kitti") -> Protocol:
+        """The Protocol a run under this card uses on `dataset`: its inputs, thresholds from its rules, its name and
+        version on the card."""
         from ..protocol import Protocol
 
-        r = self.rules
-        return Protocol(seed=seed, acc_rre_deg=r.acc_rre_deg, acc_rte_m=r.acc_rte_m, filter_rre_deg=r.filter_rre_deg,
-                        filter_rte_m=r.filter_rte_m, rre_convention=r.rre, name=self.name,
-                        version=self.version)  # fmt: skip
+        r, i = self.rules, self.inputs(dataset) or NATIVE
+        crop = i.image_crop or (0, 0)
+        return Protocol(
+            seed=seed, rotation_range_rad=i.rotation_range_rad, translation_range_m=i.translation_range_m,
+            acc_rre_deg=r.acc_rre_deg, acc_rte_m=r.acc_rte_m, filter_rre_deg=r.filter_rre_deg,
+            filter_rte_m=r.filter_rte_m, rre_convention=r.rre, name=self.name, version=self.version,
+            image_top=i.image_top, image_scale=i.image_scale, image_crop_h=crop[0], image_crop_w=crop[1],
+            points=i.points or 0, voxel_m=i.voxel_m or 0.0, pose_frame=i.pose_frame,
+        )  # fmt: skip
 
     def unmet(self, dataset: str) -> list[str]:
         """The inputs i2pbench cannot give this card's stages on `dataset` ([] when a run can honour it)."""
         inputs = self.inputs(dataset)
         if inputs is None:
             return [f"{self.paper}'s code has no {dataset} pipeline to follow"]
-        return inputs.differences(NATIVE)
+        return unsupported(inputs)
 
 
 def _cite(repo: str, where: str) -> str:
@@ -136,7 +154,7 @@ EDGEREGNET = ProtocolCard(
 )
 
 _PEER_KITTI = Inputs(image_scale=0.5, image_crop=(160, 512), points=40960, voxel_m=0.1, pose_frame="camera")
-_PEER_NUSCENES = Inputs(image_scale=0.4, image_crop=(160, 320), points=40960, voxel_m=0.1, sweeps=3,
+_PEER_NUSCENES = Inputs(image_top=100, image_scale=0.4, image_crop=(160, 320), points=40960, voxel_m=0.1, sweeps=3,
                         pose_frame="camera")  # fmt: skip
 
 CORRI2P = ProtocolCard(
@@ -154,7 +172,11 @@ CORRI2P = ProtocolCard(
         _cite("rsy6318/CorrI2P", "analysis.py:89-91 — success RRE < 5 and RTE < 2 over every frame"),
         _cite("rsy6318/CorrI2P", "kitti_pc_img_dataloader.py:269-287 — 0.1 m voxels, 40960 points, x0.5, centre crop"),
         _cite("rsy6318/CorrI2P", "eval_all.py:25,34-45 — 40960 points; camera-frame t_x, t_z ±10 m, yaw ±2π"),
-        _cite("rsy6318/CorrI2P", "nuScenes/options.py:15-16,22-24,30 — 3 sweeps, x0.2, 160 x 320, 40960 points"),
+        _cite(
+            "rsy6318/CorrI2P",
+            "nuScenes/options.py:15-16,21-24,30 — 3 sweeps, top 100 rows, x0.2, 160 x 320, 40960 points",
+        ),
+        _cite("rsy6318/CorrI2P", "nuScenes_script/make_dataset.py:263-264 — the top rows cut before saving"),
     ),
     notes=(
         "a failed PnP returns uninitialised rvec/tvec that cal_error_all.py scores as they are; the card scores "
@@ -187,11 +209,26 @@ DEEPI2P = ProtocolCard(
     version=1,
     paper="DeepI2P",
     kitti=Inputs(
-        image_scale=0.5, image_crop=(160, 512), points=20480, voxel_m=0.1, pose_frame="camera", translation_range_m=0.0
-    ),
+        image_top=50,
+        image_scale=0.5,
+        image_crop=(160, 512),
+        points=20480,
+        sweeps=3,
+        other_frame=True,
+        pose_frame="camera",
+        rotation_range_rad=0.0,
+        translation_range_m=0.0,
+    ),  # fmt: skip
     nuscenes=Inputs(
-        image_scale=0.2, image_crop=(160, 320), points=20480, voxel_m=0.1, sweeps=3, translation_range_m=0.0
-    ),
+        image_top=100,
+        image_scale=0.2,
+        image_crop=(160, 320),
+        points=20480,
+        sweeps=3,
+        other_frame=True,
+        rotation_range_rad=0.0,
+        translation_range_m=0.0,
+    ),  # fmt: skip
     rules=ScoringRules(
         failure="identity",
         max_translation_m=14.14,
@@ -205,13 +242,30 @@ DEEPI2P = ProtocolCard(
         _cite("lijx10/DeepI2P", "evaluation/registration_pnp.py:134 — an estimate with ||t|| >= 14.14 m: identity"),
         _cite("lijx10/DeepI2P", "evaluation/registration_result_analysis.py:22-25 — frames with cost <= 1e-6 left out"),
         _cite("lijx10/DeepI2P", "evaluation/registration_result_analysis.py:37-41 — t < 2 & r < 5; sqrt(np.var)"),
-        _cite("lijx10/DeepI2P", "kitti/options.py:21-28,39-44 — 160 x 512, 20480 points, no translation, yaw ±2π"),
-        _cite("lijx10/DeepI2P", "nuscenes_t/options.py:15-28,37-42 — 3 sweeps, x0.2, 160 x 320, yaw about z"),
+        _cite(
+            "lijx10/DeepI2P",
+            "data/kitti_pc_img_pose_loader.py:294-306 — 3 sweeps; 0.3 m voxels past 2N points; 20480 sampled",
+        ),
+        _cite(
+            "lijx10/DeepI2P",
+            "data/kitti_pc_img_pose_loader.py:318-349 — frame j's image, top 50 rows cut, x0.5, centre crop",
+        ),
+        _cite("lijx10/DeepI2P", "data/kitti_pc_img_pose_loader.py:366-372 — at test ('val') no random transform"),
+        _cite("lijx10/DeepI2P", "kitti/options.py:15-28 — 3 sweeps, 10 m / 40 frames to frame j, 160 x 512, 20480"),
+        _cite(
+            "lijx10/DeepI2P",
+            "data/nuscenes_pc_img_pose_loader.py:297-322,339-345 — a nearby camera record, top "
+            "rows cut, x0.2, centre crop; no random transform at test",
+        ),
+        _cite("lijx10/DeepI2P", "nuscenes_t/options.py:15-28 — 3 sweeps, 100 rows, x0.2, 160 x 320, 20480 points"),
     ),
     notes=(
         "the cost is registration_pnp.py's outlier ratio 1 - inliers / matches; the card leaves out a solved frame "
         "whose every match is a RANSAC inlier (n_inliers == n_matches), the only way the ratio is <= 1e-6",
-        "the released test set had no random translation (lijx10/DeepI2P#7): translation range 0",
+        "at test the pose to find is the real motion between the accumulated scan and an image taken up to 10 m "
+        "away, with no random transform (lijx10/DeepI2P#7; the 'val_random_Ry' mode adds a yaw); i2pbench cannot "
+        "pair a scan with another frame's image yet",
+        "a 0.3 m voxel grid applies only to a cloud over 2 x 20480 points, which the card does not model",
     ),
 )
 
@@ -229,7 +283,8 @@ COFII2P = ProtocolCard(
         _cite("WHU-USI3DV/CoFiI2P", "evaluation/calc_result.py:28-29,33 — the (10°, 5 m) thresholds"),
         _cite("WHU-USI3DV/CoFiI2P", "data/options.py:12-21,33-38 — 160 x 512, 20480 points, t ±10 m, yaw ±2π"),
         _cite("WHU-USI3DV/CoFiI2P", "data/kitti.py:283-320 — 0.1 m voxels, sampling, x0.5, centre crop"),
-        _cite("WHU-USI3DV/CoFiI2P", "data/options.py:68-74 — nuScenes: 3 sweeps, x0.4, 160 x 320"),
+        _cite("WHU-USI3DV/CoFiI2P", "data/options.py:68-74 — nuScenes: 3 sweeps, top 100 rows, x0.4, 160 x 320"),
+        _cite("WHU-USI3DV/CoFiI2P", "data/build_nuscenes/build_dataset.py:253-254 — the top rows cut before saving"),
     ),
     notes=(
         "calc_result.py prints three threshold pairs, (1e5, 1e5), (45°, 10 m) and (10°, 5 m); the card takes "
@@ -319,7 +374,7 @@ def for_run(name: str, seed: int, dataset: str, registry=None) -> Protocol:
             f"{dataset} yet, so nothing was run:\n  {lines}\nto score an existing run by its scoring rules alone: "
             f"i2pbench evaluate RUN_DIR --rules {card.name} --rules-only"
         )
-    return card.protocol(seed)
+    return card.protocol(seed, dataset)
 
 
 def label(protocol: Protocol) -> str:

@@ -55,7 +55,8 @@ def rules_table(records: pd.DataFrame, protocol: Protocol, wanted: list[cards.Pr
         elif rules_only:
             result.rules_only.append(card.name)
         else:
-            result.rerun[card.name] = card.unmet(dataset)  # a run's inputs are i2pbench's own (cards.for_run)
+            inputs = card.inputs(dataset)
+            result.rerun[card.name] = card.unmet(dataset) if inputs is None else inputs.differences(given, "this run")
     rows = []
     for key, group in _with_condition(records).groupby(ROW, sort=False, dropna=False):
         row = dict(zip(ROW, key, strict=True))
