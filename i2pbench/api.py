@@ -38,7 +38,7 @@ if TYPE_CHECKING:
     from .errors import DataError, PluginError, StageError, WeightsError
     from .geometry import cell_half_diagonal, in_image, make_transform, project, rot_z, transform_points
     from .hookspecs import Register, hookimpl
-    from .learned import BatchedStage, LearnedComponent, width_mismatch
+    from .learned import BatchedStage, Device, LearnedComponent, width_mismatch
     from .methods import Method, MethodPreset, Row, Size
     from .metric_registry import Metric, Scored
     from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
@@ -60,6 +60,7 @@ __all__ = [
     "Corruption",
     "DataError",
     "Dataset",
+    "Device",
     "Encoder2D",
     "Encoder3D",
     "Exchanger",
@@ -126,7 +127,7 @@ _MODULES = {
     "errors": ("DataError", "PluginError", "StageError", "WeightsError"),
     "geometry": ("cell_half_diagonal", "in_image", "make_transform", "project", "rot_z", "transform_points"),
     "hookspecs": ("Register", "hookimpl"),
-    "learned": ("BatchedStage", "LearnedComponent", "width_mismatch"),
+    "learned": ("BatchedStage", "Device", "LearnedComponent", "width_mismatch"),
     "methods": ("Method", "MethodPreset", "Row", "Size"),
     "metric_registry": ("Metric", "Scored"),
     "types": ("Features", "Frame", "Keypoints2D", "Keypoints3D", "Matches", "PoseEstimate", "SensorFrame"),

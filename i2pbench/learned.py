@@ -15,6 +15,8 @@ from .components import Component
 from .errors import StageError
 from .types import Features, Frame, Keypoints2D, Keypoints3D
 
+Device = torch.device | str  # where a stage's `prepare` puts its tensors
+
 
 class LearnedComponent(Component, torch.nn.Module):
     """A component with parameters; its weights live in a checkpoint shared by the pipeline's learned stages.
@@ -65,7 +67,7 @@ class BatchedStage(LearnedComponent):
         self,
         frame: Frame,
         *keypoints: Keypoints2D | Keypoints3D,
-        device: torch.device | str = "cpu",
+        device: Device = "cpu",
         cache: dict | None = None,
     ) -> dict[str, torch.Tensor]:
         """one frame's network inputs (no batch dim), made on the CPU; `keypoints` are those of the stage's kind

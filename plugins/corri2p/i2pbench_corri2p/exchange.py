@@ -33,6 +33,7 @@ from torch import nn
 from i2pbench.api import (
     BatchedStage,
     Component,
+    Device,
     Exchanger,
     Frame,
     Keypoints2D,
@@ -107,12 +108,7 @@ class CorrI2PExchanger(BatchedStage, Exchanger):
         return width_mismatch(self, upstream, ("descriptor_dim", "global_dim"))
 
     def prepare(
-        self,
-        frame: Frame,
-        kp2d: Keypoints2D,
-        kp3d: Keypoints3D,
-        device: torch.device | str = "cpu",
-        cache: dict | None = None,
+        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, device: Device = "cpu", cache: dict | None = None
     ) -> dict[str, torch.Tensor]:
         """one frame's node membership: the cell of each pixel [M2] and the point node of each 3D keypoint [M3],
         with the image's cell count; neither depends on the protocol's transform."""

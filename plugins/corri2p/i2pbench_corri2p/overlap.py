@@ -32,6 +32,7 @@ import torch.nn.functional as F
 from i2pbench.api import (
     BatchedStage,
     Component,
+    Device,
     Features,
     Frame,
     Keypoints2D,
@@ -132,12 +133,7 @@ class CorrI2PMatcher(BatchedStage, Matcher):
         )
 
     def prepare(
-        self,
-        frame: Frame,
-        kp2d: Keypoints2D,
-        kp3d: Keypoints3D,
-        device: torch.device | str = "cpu",
-        cache: dict | None = None,
+        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, device: Device = "cpu", cache: dict | None = None
     ) -> dict[str, torch.Tensor]:
         """one frame's supervision (frame must carry T_gt): overlap labels [M2], [M3], the circle loss's anchors
         (anchor2d [A2], anchor3d [A3], positive [A2 x A3], their counts) and the frame's number of true pairs."""

@@ -35,6 +35,7 @@ from i2pbench.api import (
     MATCHES,
     BatchedStage,
     Component,
+    Device,
     Features,
     Frame,
     Keypoints2D,
@@ -155,12 +156,7 @@ class DeepI2PClassifier(BatchedStage, Matcher):
         )
 
     def prepare(
-        self,
-        frame: Frame,
-        kp2d: Keypoints2D,
-        kp3d: Keypoints3D,
-        device: torch.device | str = "cpu",
-        cache: dict | None = None,
+        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, device: Device = "cpu", cache: dict | None = None
     ) -> dict[str, torch.Tensor]:
         """one frame's cell positions [M2 x 2] and supervision (frame must carry T_gt): frustum labels [M3] and
         cell targets [M3] (cell_targets)."""

@@ -33,6 +33,7 @@ from scipy.spatial import cKDTree
 from i2pbench.api import (
     BatchedStage,
     Component,
+    Device,
     Exchanger,
     Frame,
     Keypoints2D,
@@ -92,12 +93,7 @@ class DeepI2PFusion(BatchedStage, Exchanger):
         return width_mismatch(self, upstream, ("descriptor_dim", "global_dim"))
 
     def prepare(
-        self,
-        frame: Frame,
-        kp2d: Keypoints2D,
-        kp3d: Keypoints3D,
-        device: torch.device | str = "cpu",
-        cache: dict | None = None,
+        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, device: Device = "cpu", cache: dict | None = None
     ) -> dict[str, torch.Tensor]:
         """one frame's cell positions [M2 x 2] in [0, 1] and the 3D keypoints' node graph (node_graph)."""
         graph = node_graph(kp3d.xyz, self.conf["point_nodes"], self.conf["interpolation_k"])

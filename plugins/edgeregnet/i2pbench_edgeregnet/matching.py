@@ -19,6 +19,7 @@ from torch import nn
 from i2pbench.api import (
     BatchedStage,
     Component,
+    Device,
     Features,
     Frame,
     Keypoints2D,
@@ -130,12 +131,7 @@ class OptimalMatcher(BatchedStage, Matcher):
         return Matches(i2d.cpu().numpy(), i3d.cpu().numpy(), score.float().cpu().numpy())
 
     def prepare(
-        self,
-        frame: Frame,
-        kp2d: Keypoints2D,
-        kp3d: Keypoints3D,
-        device: torch.device | str = "cpu",
-        cache: dict | None = None,
+        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, device: Device = "cpu", cache: dict | None = None
     ) -> dict[str, torch.Tensor]:
         """one frame's supervision (frame must carry T_gt): true pairs [K], their count, matchable and in-fov flags."""
         gt = ground_truth_matches(frame, kp2d, kp3d, radius_px=self.conf["eps_c"])

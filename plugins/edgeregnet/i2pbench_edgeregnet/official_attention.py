@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from i2pbench.api import BatchedStage, Component, Exchanger, Frame, Keypoints2D, Keypoints3D
+from i2pbench.api import BatchedStage, Component, Device, Exchanger, Frame, Keypoints2D, Keypoints3D
 from i2pbench.layers.attention import key_mask
 from i2pbench.layers.pointnet2 import seeded_cloud
 
@@ -97,12 +97,7 @@ class OfficialAttention(BatchedStage, Exchanger):
         return descriptor_dim_mismatch(self, upstream)
 
     def prepare(
-        self,
-        frame: Frame,
-        kp2d: Keypoints2D,
-        kp3d: Keypoints3D,
-        device: torch.device | str = "cpu",
-        cache: dict | None = None,
+        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, device: Device = "cpu", cache: dict | None = None
     ) -> dict[str, torch.Tensor]:
         """one frame's positions: normalised pixels [M2 x 2], edge points normalised by the cloud [M3 x 3]."""
         uv = torch.from_numpy(np.asarray(kp2d.uv, np.float32))

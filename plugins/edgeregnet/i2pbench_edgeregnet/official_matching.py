@@ -26,6 +26,7 @@ from torch import nn
 from i2pbench.api import (
     BatchedStage,
     Component,
+    Device,
     Features,
     Frame,
     Keypoints2D,
@@ -152,12 +153,7 @@ class OfficialMatcher(BatchedStage, Matcher):
         return Matches(i2d[keep].cpu().numpy(), i3d[keep].cpu().numpy(), score[keep].float().cpu().numpy())
 
     def prepare(
-        self,
-        frame: Frame,
-        kp2d: Keypoints2D,
-        kp3d: Keypoints3D,
-        device: torch.device | str = "cpu",
-        cache: dict | None = None,
+        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, device: Device = "cpu", cache: dict | None = None
     ) -> dict[str, torch.Tensor]:
         """one frame's supervision (frame must carry T_gt): the authors' projections xy [M3 x 2], the pixels uv."""
         K, T = (torch.from_numpy(np.asarray(a, np.float32)) for a in (frame.K_true, frame.T_gt))
