@@ -145,4 +145,4 @@ def test_page_scripts_run_without_errors_and_sort_the_leaderboard(page, tmp_path
     assert "<html" in dom and 'data-js-errors="' not in dom
     assert 'aria-sort="none"' in dom  # the page's script ran and marked every header sortable
     assert 'data-by-name="canny' in dom and 'data-by-name-desc="lsd' in dom
-    assert dom.count("<tr>") == 3  # header and two combinations
+    assert dom.split("</table>")[0].count("<tr>") == 3  # the leaderboard: header and two combinations

@@ -29,12 +29,16 @@ def row_frames(records: pd.DataFrame) -> dict[tuple[str, str], tuple[str, ...]]:
     return {key: tuple(sorted(set(group["frame_id"]))) for key, group in records.groupby(ROW, sort=False)}
 
 
-def split(board: pd.DataFrame, records: pd.DataFrame) -> list[FrameSet]:
-    """The board cut into one table per frame set, the set of the board's first row first."""
+def split(board: pd.DataFrame, records: pd.DataFrame, protocol: Protocol) -> list[FrameSet]:
+    """One table per frame set, the set of the board's first row first; each is built from its own rows' records,
+    so what a board says of a row against the row above (its paired tests) is said within the table."""
     frames = row_frames(records)
     keys = [frames[(c, w)] for c, w in zip(board["combination"], board["weights"], strict=True)]
-    order = list(dict.fromkeys(keys))
-    return [FrameSet(s, board[[k == s for k in keys]].reset_index(drop=True)) for s in order]
+    sets = list(dict.fromkeys(keys))
+    if len(sets) == 1:
+        return [FrameSet(sets[0], board)]
+    of_record = [frames[key] for key in zip(records["combination"], records["weights"], strict=True)]
+    return [FrameSet(s, lb.build(records[[k == s for k in of_record]], protocol)) for s in sets]
 
 
 def shared_board(records: pd.DataFrame, sets: list[FrameSet], protocol: Protocol) -> FrameSet | None:

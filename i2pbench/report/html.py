@@ -94,7 +94,7 @@ def render(
     notes: list[str],
     robust: robustness.Section | None = None,
 ) -> str:
-    sets = framesets.split(board, run.records)
+    sets = framesets.split(board, run.records, run.protocol)
     labels = _labels(board, run.records, sets)
     groups = curves.rows(run.records, list(labels), labels)
     sections = [
@@ -128,10 +128,11 @@ def render(
 
 
 def board_columns(board: pd.DataFrame) -> list[str]:
-    """Every column a terminal board shows (leaderboard.DISPLAY, less those empty in every row), then EXTRA; the
-    dataset and split only when rows differ in them."""
-    shown = [c for c in lb.DISPLAY if c in board and not (board[c].astype(str) == "").all()]
-    shown = [c for c in shown if c not in IN_TITLE or board[c].nunique() > 1]
+    """Every column a terminal board of these rows shows, as `leaderboard.to_markdown` chooses them (so columns a
+    metric plugin or a later version adds come along), then EXTRA; the dataset and split only when rows differ."""
+    header = lb.to_markdown(board).splitlines()[0]
+    shown = [c.strip() for c in header.strip().strip("|").split(" | ")]
+    shown = [c for c in shown if c in board and (c not in IN_TITLE or board[c].nunique() > 1)]
     return shown + [c for c in EXTRA if c in board and c not in shown]
 
 
