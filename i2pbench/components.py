@@ -95,8 +95,8 @@ def _kind(value: Any) -> str | None:
 
 
 def check_kind(owner: str, key: str, default: Any, value: Any) -> None:
-    """Refuse a value of another kind than its default (issue 31: a `cameras` string became a list of characters,
-    a number given as text reached the stage). A None default or value, and ints for floats, go through."""
+    """Refuse a value of another kind than its default (a string where a list goes would be read as its
+    characters). A None default or value, and ints for floats, go through."""
     want, got = _kind(default), _kind(value)
     if want is not None and got is not None and want != got:
         raise ConfigError(f"{owner}: config {key} = {value!r} is {got}, but {key} takes {want} (default {default!r})")

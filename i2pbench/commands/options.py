@@ -199,6 +199,6 @@ def grid_file(path: str):
         raise PluginError(f"--grid {path}: not valid YAML ({yaml_problem(exc)})") from None
     except (AttributeError, TypeError, ValueError) as exc:
         raise PluginError(f"--grid {path}: expected {shape} ({exc})") from None
-    if not (grid.base or grid.grid or grid.confs):  # an empty file ran the default pipeline as if it were the grid
+    if not (grid.base or grid.grid or grid.confs):  # else the default pipeline would run as the grid
         raise PluginError(f"--grid {path}: the file names no stage; expected {shape}")
     return grid

@@ -124,10 +124,9 @@ def run(args: argparse.Namespace) -> int:
 
 def board_name(store_name: str, args: argparse.Namespace) -> str:
     """The default board's name: the store's (<dataset>-<split>) and what was run, so a run's board never replaces
-    another's (issue 31: `--preset paper-table-1` replaced the default board). The default pipeline keeps the bare
-    name; a preset, a grid file, stage choices, --conf, --weights, corruptions, a seed other than 0 and a --protocol
-    other than the default each add a part, e.g. synthetic-test-paper-table-1, kitti-all-classic,
-    kitti-all-canny-depth-oracle-epnp-ransac."""
+    another's. The default pipeline keeps the bare name; a preset, a grid file, stage choices, --conf, --weights,
+    corruptions, a seed other than 0 and a --protocol other than the default each add a part, e.g.
+    synthetic-test-paper-table-1, kitti-all-classic, kitti-all-canny-depth-oracle-epnp-ransac."""
     import hashlib
     import re
 
