@@ -13,6 +13,7 @@ import pandas as pd
 from i2pbench.cli import main
 from i2pbench.protocol import Protocol
 from i2pbench.report.html import write_report
+from i2pbench.runs.store import ResultsStore
 from i2pbench.scoring.recall import by_sequence, cells, sequence
 
 INF = math.inf
@@ -58,9 +59,28 @@ def test_the_board_and_the_report_carry_them(shared_data, tmp_path):
             "--frames", "3", "--runs-dir", str(runs), "--quiet", "--out", str(tmp_path / "board")]  # fmt: skip
     assert main(argv) == 0
     board = pd.read_parquet(tmp_path / "board.parquet")
+    records = ResultsStore(runs / "kitti-all").load()
+    assert records["sequence"].tolist() == [f.partition("/")[0] for f in records["frame_id"]]
     assert board["recall RRE<5° (%)"].tolist() == board["Acc. (%) ↑"].tolist()
     assert board["recall RTE<2 m (%)"].tolist() == board["Acc. (%) ↑"].tolist()
     assert "RRE p90 (°)" in board
     write_report(runs / "kitti-all", tmp_path / "report.html", overlays=0)
     page = (tmp_path / "report.html").read_text()
     assert "<h2>By sequence</h2>" in page and "<td class=text" in page
+
+
+def test_a_recorded_sequence_wins_over_the_frame_ids_folder():
+    records = RECORDS.assign(sequence=["scene-1", "scene-1", "scene-2", "", ""])  # the last two written before
+    table = by_sequence(records, Protocol()).set_index("sequence")
+    assert list(table.index) == ["all", "01", "scene-1", "scene-2"]
+    assert table.loc["scene-1", "frames"] == 2 and table.loc["01", "frames"] == 2
+
+
+def test_a_nuscenes_frame_belongs_to_its_scene(tmp_path):
+    from test_data_nuscenes import SAMPLE, build_dataroot
+
+    from i2pbench.data.nuscenes import NuScenes
+
+    data = NuScenes("val", {"root": str(build_dataroot(tmp_path, "v1.0-trainval"))})
+    assert data.sequence_of(f"{SAMPLE}/CAM_FRONT") == "scene-0916"
+    assert data.sequence_of("no-such-sample/CAM_BACK") == "camera CAM_BACK"

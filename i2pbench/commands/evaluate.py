@@ -36,7 +36,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rules-only", action="store_true", help="with --rules: score cards whose inputs differ from "
                    "the run's by their rules alone instead of listing them as needing a rerun")  # fmt: skip
     p.add_argument("--by-sequence", action="store_true", help="also print each row's Acc. and error percentiles "
-                   "per sequence (KITTI sequence or drive; nuScenes camera)")  # fmt: skip
+                   "per sequence (KITTI sequence or drive, nuScenes scene)")  # fmt: skip
     p.add_argument("--out", help="also write the leaderboard to STEM.csv, STEM.md and STEM.parquet (with --rules: "
                    "the table to STEM.csv and STEM.md)")  # fmt: skip
 

@@ -62,6 +62,11 @@ class Dataset:
         """What identifies this data for caching and leaderboards."""
         return {"dataset": self.name, "split": self.split, "root": str(self.conf.get("root") or "")}
 
+    def sequence_of(self, frame_id: str) -> str:
+        """The sequence, drive or scene a frame belongs to (a leaderboard's per-sequence breakdown); the default,
+        the frame id's folder, is a KITTI sequence or drive."""
+        return frame_id.partition("/")[0]
+
     def frame_files(self, frame_id: str) -> list[Path]:
         """The files `load(frame_id)` reads, so a cached result is dropped once one of them changes.
 

@@ -218,6 +218,14 @@ class NuScenes(Dataset):
         night = "night" in scene["description"].lower()
         return scene["name"] in names and not (night and self.conf["exclude_night"])
 
+    def sequence_of(self, frame_id: str) -> str:
+        """The frame's scene, by name (scene-0916); its camera when the tables do not know the sample."""
+        token, _, camera = frame_id.partition("/")
+        try:
+            return self.devkit.get("scene", self.devkit.get("sample", token)["scene_token"])["name"]
+        except KeyError:
+            return f"camera {camera}"
+
     def frame_ids(self) -> list[str]:
         if self._ids is None:
             nusc, names = self.devkit, self.scene_names()

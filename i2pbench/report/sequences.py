@@ -10,10 +10,10 @@ from ..scoring.cards import rescored
 from ..scoring.recall import by_sequence
 
 EXPLAIN = (
-    "Each row's frames by sequence (the frame id's folder: a KITTI sequence or drive; nuScenes frames by camera, "
-    "since a frame id names no scene), clean frames only. Percentiles are over all frames, a failure counting as an "
-    "infinite error, and read one frame's error (no interpolation). The board's Parquet file holds the recall at "
-    "several thresholds and the 25th to 90th percentiles over the whole run."
+    "Each row's frames by sequence (a KITTI sequence or drive, a nuScenes scene; nuScenes records written before "
+    "runs recorded the scene go by camera), clean frames only. Percentiles are over all frames, a failure counting "
+    "as an infinite error, and read one frame's error (no interpolation). The board's Parquet file holds the recall "
+    "at several thresholds and the 25th to 90th percentiles over the whole run."
 )
 
 

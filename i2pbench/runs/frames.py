@@ -161,6 +161,7 @@ def _record(
         "dataset": dataset.name,
         "split": dataset.split,
         "frame_id": frame_id,
+        "sequence": _sequence(dataset, frame_id),  # its KITTI sequence or drive, or nuScenes scene
         **labels(job),
         **{kind: job.combination.name(kind) for kind in STAGE_ORDER},
         "weights": job.weights,
@@ -185,6 +186,14 @@ def _record(
     }
     record.update({f"t_{kind}_s": outcome.timings.get(kind, np.nan) for kind in STAGE_ORDER})
     return record
+
+
+def _sequence(dataset: Dataset, frame_id: str) -> str:
+    """The frame's sequence, "" when the dataset cannot tell (a frame that failed to load may not be in its tables)."""
+    try:
+        return dataset.sequence_of(frame_id)
+    except I2PBenchError:
+        return ""
 
 
 def true_matches(frame: Frame | None, outcome: FrameOutcome) -> float:

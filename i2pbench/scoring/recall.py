@@ -4,8 +4,9 @@ Recall at an RRE threshold is the share of ALL frames with RRE below it and RTE 
 (and the other way round for RTE), so each recall column at the protocol's own thresholds is its Acc. Percentiles
 are over all frames with a failure an infinite error (its quantile is then "inf", never a number a failure lowered)
 and take the frame at that rank (numpy's inverted_cdf: no interpolation, so a percentile is some frame's error).
-A frame's sequence is its KITTI sequence or drive (the frame id's part before the "/"; synthetic streets too); a
-nuScenes frame id ("<sample token>/<camera>") names no scene, so its frames are grouped by camera instead.
+A frame's sequence is what its dataset recorded (`Dataset.sequence_of`: a KITTI sequence or drive, the synthetic
+streets' sequence, a nuScenes scene); for records written before that column, the frame id's part before the "/",
+or for nuScenes, whose frame id ("<sample token>/<camera>") names no scene, the camera.
 """
 
 from __future__ import annotations
@@ -58,6 +59,16 @@ def sequence(dataset: str, frame_id: str) -> str:
     return f"camera {tail}" if dataset.startswith("nuscenes") else head
 
 
+def sequences(records: pd.DataFrame) -> list[str]:
+    """Each record's sequence: as its dataset recorded it (`Dataset.sequence_of`: a nuScenes scene), else, for
+    records written before, read from its frame id."""
+    stored = records["sequence"] if "sequence" in records else pd.Series("", index=records.index)
+    return [
+        s if isinstance(s, str) and s else sequence(d, f)
+        for s, d, f in zip(stored, records["dataset"], records["frame_id"], strict=True)
+    ]
+
+
 SEQUENCE_COLUMNS = ["frames", "Acc. (%) ↑", "RTE p50 (m)", "RTE p90 (m)", "RRE p50 (°)", "RRE p90 (°)"]
 
 
@@ -69,7 +80,7 @@ def by_sequence(records: pd.DataFrame, protocol: Protocol, label=None) -> pd.Dat
     rows = []
     for (combination, weights), group in records.groupby(["combination", "weights"], sort=False):
         name = label(combination, weights) if label else f"{combination} ({weights})"
-        seqs = group.assign(_seq=[sequence(d, f) for d, f in zip(group["dataset"], group["frame_id"], strict=True)])
+        seqs = group.assign(_seq=sequences(group))
         parts = [("all", seqs), *seqs.groupby("_seq", sort=True)]
         for seq, part in parts:
             rte, rre = _errors(part)
