@@ -56,7 +56,9 @@ def _leaderboard(text: str) -> str:
 def _tables(text: str) -> list[tuple[str, list[str]]]:
     """[(heading before the table, [first cell of each body row])] of every table in the Leaderboard section."""
     text = _leaderboard(text)
-    found = re.findall(r"(?:<h3>([^<]*)</h3>)?<table class=\"sortable\">(.*?)</table>", text, flags=re.S)
+    found = re.findall(
+        r"(?:<h3>([^<]*)</h3>)?<div class=wide><table class=\"sortable\">(.*?)</table>", text, flags=re.S
+    )
     return [(heading, re.findall(r"<tr><td[^>]*>([^<]*)</td>", body)) for heading, body in found]
 
 

@@ -34,7 +34,7 @@ th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: right; }
 th { background: #f3f3f3; cursor: pointer; user-select: none; white-space: nowrap; }
 th[aria-sort=ascending]::after { content: " ▲"; } th[aria-sort=descending]::after { content: " ▼"; }
 td { white-space: nowrap; } td.text { text-align: left; }
-h3 { font-size: 15px; margin: 20px 0 6px; }
+h3 { font-size: 15px; margin: 20px 0 6px; } .wide { overflow-x: auto; max-width: 100%; }
 img { max-width: 100%; display: block; margin: 8px 0; }
 figure { margin: 16px 0; } figcaption { font-weight: 600; }
 .meta { color: #555; font-size: 13px; } .note { color: #8a4b00; }
@@ -145,7 +145,8 @@ def table(board: pd.DataFrame, columns: list[str] | None = None) -> str:
         "<tr>" + "".join(_cell(row[c], row.get(SORT_BY.get(c, c)), c in text) for c in columns) + "</tr>\n"
         for _, row in board.iterrows()
     )
-    return f'<table class="sortable"><thead><tr>{head}</tr></thead><tbody>\n{body}</tbody></table>'
+    table = f'<table class="sortable"><thead><tr>{head}</tr></thead><tbody>\n{body}</tbody></table>'
+    return f"<div class=wide>{table}</div>"  # a board wider than the page scrolls on its own
 
 
 def _boards(run: RunDir, sets: list[framesets.FrameSet]) -> str:
