@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from .. import leaderboard as lb
+from ..scoring.cards import rescored
 from . import curves, framesets, overlay, robustness, sequences
 from .examples import Example, render_examples
 from .rundir import RunDir, load_run
@@ -96,7 +97,7 @@ def render(
 ) -> str:
     sets = framesets.split(board, run.records, run.protocol)
     labels = _labels(board, run.records, sets)
-    groups = curves.rows(run.records, list(labels), labels)
+    groups = curves.rows(rescored(run.records, run.protocol), list(labels), labels)  # errors by the run's card
     sections = [
         _header(run, notes),
         _section("Leaderboard", _explain_board(run), _boards(run, sets)),
