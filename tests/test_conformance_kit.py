@@ -15,6 +15,7 @@ from i2pbench.api import (
     Matches,
     PoseEstimate,
     PoseSolver,
+    hookimpl,
 )
 from i2pbench.geometry import in_image, project
 from i2pbench.testing import assert_conforms, check_component, registered_components, synthetic_frame
@@ -229,12 +230,17 @@ def test_assert_conforms_lists_every_problem():
     assert "extractor3d 'scribbler'" in str(info.value) and "[side effects]" in str(info.value)
 
 
-def test_registered_components_reads_a_plugins_hooks():
+def test_registered_components_reads_a_plugins_hooks_as_the_registry_calls_them():
     class Plugin:
+        @hookimpl
         def register_extractors_2d(self, register):
             register(Corners)
 
+        @hookimpl
         def register_pose_solvers(self, register):
+            register(Confident)
+
+        def register_matchers(self, register):  # no @hookimpl: pluggy, and so the registry, never calls it
             register(Confident)
 
     assert registered_components(Plugin()) == [Corners, Confident]

@@ -1,4 +1,5 @@
-"""Which components a plugin registers, read straight from its hooks (no entry points, no environment needed)."""
+"""Which components a plugin registers, from its hooks called as the registry calls them (through pluggy, so only
+hooks marked `@hookimpl` count), with no entry points or environment needed."""
 
 from __future__ import annotations
 
