@@ -70,7 +70,7 @@ def stopped(exc: KeyboardInterrupt, store: Any, invocation: Any, protocol: Any) 
     invocation.fail(f"interrupted by Ctrl-C after {len(records)} of {total} frames")
     if len(records):
         print(leaderboard.to_markdown(leaderboard.build(pd.DataFrame(records), protocol)))
-    mine = int((records["invocation"] == invocation.id).sum()) if len(records) else 0
+    mine = int((records["invocation"] == invocation.id).sum()) if "invocation" in records else 0
     print(
         f"i2pbench: interrupted (Ctrl-C): workers stopped; {len(records)} of {total} frames finished ({mine} computed "
         f"by this run), all kept in {store.frames_dir}; the board above is of those; the same command resumes",
@@ -87,8 +87,7 @@ def _finished(records: list[dict[str, Any]], store: Any, invocation: str):
     from .runs.store import ResultsStore
 
     stored = ResultsStore(store.root).load()  # opening it sweeps the temp file of a frame a worker was writing
-    if len(stored) and "invocation" in stored:
-        stored = stored[stored["invocation"] == invocation]
+    stored = stored[stored["invocation"] == invocation] if "invocation" in stored else stored.iloc[:0]
     both = pd.concat([pd.DataFrame(records), stored], ignore_index=True)
     if both.empty:
         return both
