@@ -25,6 +25,10 @@ class WeightsError(I2PBenchError):
     """A checkpoint is unreadable or does not fit the requested combination."""
 
 
+class IsolationError(Exception):
+    """An isolated pipeline's child process could not run the frame: it died, or could not receive the pipeline."""
+
+
 def os_problem(exc: OSError) -> str:
     """An OSError as one line naming the path at fault: `PATH: reason`, where a path that is a file but must be a
     folder says so (mkdir's bare 'File exists' reads as if the target itself were there), and a path inside the

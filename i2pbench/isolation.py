@@ -1,14 +1,15 @@
 """Process isolation for untrusted plugins: a frame's stages run in a child process, killed when time runs out.
 
 The stage time limit (`i2pbench.timeout`) abandons a thread, which cannot stop a stage holding the GIL in C, nor
-survive one that segfaults or calls os._exit. With I2PBENCH_ISOLATE=process (`i2pbench run --isolate process`)
-every process that runs frames keeps one spawned child. The child receives the pipeline (pickled, once, and again
+survive one that segfaults or calls os._exit. With I2PBENCH_ISOLATE=process (`i2pbench run --isolate process`) every
+process that runs frames keeps one spawned child, and `isolated` wraps each pipeline built to run frames so that its
+frames go there (the pipeline itself knows nothing of it). The child receives the pipeline (pickled, once, and again
 whenever its learned weights change), then one frame at a time; as each stage starts it says which, sending the
 records of the stages finished since (each stage's output crosses once), and at the end the last records and the
 failure, if any, from which the parent builds the frame's trace. A frame that overruns is failed in the running
 stage's name, keeping the records received, and the child is SIGKILLed; a child that crashes fails its frame the
-same way; the next frame starts a fresh child. The price: a second copy of the pipeline, a few seconds to start
-each child, and pickling every frame and stage output.
+same way; the next frame starts a fresh child. The price: a second copy of the pipeline, a few seconds to start each
+child, and pickling every frame and stage output.
 """
 
 from __future__ import annotations
@@ -25,25 +26,21 @@ from collections.abc import Sequence
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any
 
-from .errors import I2PBenchError
+from .errors import I2PBenchError, IsolationError
 from .lifeline import exit_with_parent
+from .pipeline import Pipeline
 from .timeout import StageTimeout
 from .trace import FrameOutcome, StageRecord
 
 if TYPE_CHECKING:
     import torch
 
-    from .pipeline import Pipeline
     from .types import Frame
 
 ENV_VAR = "I2PBENCH_ISOLATE"
 MODES = ("thread", "process")
 START_LIMIT_S = 120.0  # the least time a child gets to start and load a pipeline (it imports torch and the plugins)
 KILLED = "its process was killed"
-
-
-class IsolationError(Exception):
-    """The child process could not run the frame: it died, or could not receive the pipeline."""
 
 
 def isolation_from_env(default: str = "thread") -> str:
@@ -54,21 +51,36 @@ def isolation_from_env(default: str = "thread") -> str:
     return value
 
 
-class ProcessIsolation:
-    """A pipeline's handle on this process's child: what to send it, and how long a frame may take there."""
+def isolated(pipeline: Pipeline, mode: str = "env") -> Pipeline:
+    """`pipeline` itself under mode "thread"; under "process" the same stages as a pipeline whose frames run in this
+    process's child. "env" reads the mode from I2PBENCH_ISOLATE."""
+    if (isolation_from_env() if mode == "env" else mode) != "process":
+        return pipeline
+    wrapped = IsolatedPipeline(pipeline.combination, pipeline.stages, pipeline.limiter.timeout_s)
+    wrapped.weights_identity, wrapped.weights_meta = pipeline.weights_identity, pipeline.weights_meta
+    return wrapped
 
-    def __init__(self, timeout_s: float | None) -> None:
-        self.timeout_s = timeout_s
+
+class IsolatedPipeline(Pipeline):
+    """A pipeline whose frames run in this process's child, which a time limit kills."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
         self.token = uuid.uuid4().hex  # which pipeline the child holds; pickled copies keep it, in their own process
 
-    def run(self, pipeline: Pipeline, frame: Frame) -> FrameOutcome:
+    @property
+    def resolvable(self) -> bool:
+        return False  # the child is handed whole frames only
+
+    def run(self, frame: Frame) -> FrameOutcome:
+        timeout_s = self.limiter.timeout_s
         with _LOCK:  # one conversation with the child at a time, whichever thread runs frames
             child = _child()
             try:
-                child.load(pipeline, self.token, self.timeout_s)
+                child.load(self, self.token, timeout_s)
             except (IsolationError, StageTimeout) as exc:
-                return pipeline.failed(exc, "")
-            return child.run(pipeline, frame, self.timeout_s)
+                return self.failed(exc, "")
+            return child.run(self, frame, timeout_s)
 
 
 _CHILD: _Child | None = None

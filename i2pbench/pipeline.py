@@ -6,8 +6,8 @@ and seconds, in order, and the failure if any; runs, viz and training read that 
 violation or a stage running past its time limit (see `i2pbench.timeout`) becomes a failed outcome that names the
 component, so one bad frame or plugin never sinks a run. That includes plugin code calling sys.exit or raising
 KeyboardInterrupt; only the user's own Ctrl-C stops a run (`i2pbench.interrupts` tells the two apart). Untrusted
-plugins can run in a child process instead (`i2pbench.isolation`), which a time limit can kill even when the stage
-holds the GIL.
+plugins can run in a child process instead: `i2pbench.isolation` wraps a pipeline so that its frames run there, where
+a time limit can kill a stage even when it holds the GIL.
 """
 
 from __future__ import annotations
@@ -37,8 +37,7 @@ from .components import (
     STAGES,
     Component,
 )
-from .errors import PluginError, StageError
-from .isolation import IsolationError, ProcessIsolation, isolation_from_env
+from .errors import IsolationError, PluginError, StageError
 from .plugins import Registry
 from .timeout import StageTimeout, TimeLimiter, timeout_from_env
 from .trace import Failure, FrameOutcome, StageRecord, Upstream
@@ -131,30 +130,21 @@ class Pipeline:
         combination: Combination,
         stages: Mapping[str, Component],
         timeout_s: float | None | str = "env",
-        isolate: str = "thread",
     ) -> None:
-        """`timeout_s`: seconds one frame may take; None disables; "env" reads I2PBENCH_STAGE_TIMEOUT_S.
-
-        `isolate`: "thread" (stages run in this process) or "process" (in a child process); "env" reads
-        I2PBENCH_ISOLATE. Only `build` reads it by default: a pipeline built directly from instances (whose side
-        effects a caller may want to see in this process) runs them here unless told otherwise.
-        """
+        """`timeout_s`: seconds one frame may take; None disables; "env" reads I2PBENCH_STAGE_TIMEOUT_S. Stages run
+        in this process (`i2pbench.isolation.isolated` gives a pipeline whose frames run in a child process)."""
         self.combination = combination
         self.stages = {k: stages[k] for k in STAGE_ORDER if k in stages}
         self.limiter = TimeLimiter(timeout_from_env() if timeout_s == "env" else timeout_s)
-        mode = isolation_from_env() if isolate == "env" else isolate
-        self.isolation = ProcessIsolation(self.limiter.timeout_s) if mode == "process" else None
         self.weights_identity = "none" if not self.learned_modules() else untrained_identity(self.learned_modules())
         self.weights_meta: dict[str, Any] = {}
         _check_compatibility(self.stages)
 
     @classmethod
-    def build(
-        cls, registry: Registry, combination: Combination, timeout_s: float | None | str = "env", isolate: str = "env"
-    ) -> Pipeline:
+    def build(cls, registry: Registry, combination: Combination, timeout_s: float | None | str = "env") -> Pipeline:
         classes = stage_classes(registry, combination)
         stages = {kind: component_cls(combination.confs.get(kind)) for kind, component_cls in classes.items()}
-        return cls(combination, stages, timeout_s, isolate)
+        return cls(combination, stages, timeout_s)
 
     def learned_modules(self) -> dict[str, LearnedComponent]:
         learned = sys.modules.get("i2pbench.learned")  # a learned stage's class subclasses it, so it is loaded then
@@ -180,8 +170,8 @@ class Pipeline:
     @property
     def resolvable(self) -> bool:
         """Whether the solver can run alone on a stored upstream: it declares no input beyond keypoints, matches and
-        ground truth, and runs in this process (an isolated child is handed whole frames only)."""
-        return self.isolation is None and self.stages["solver"].consumes <= RESOLVABLE
+        ground truth."""
+        return self.stages["solver"].consumes <= RESOLVABLE
 
     def resolve(self, frame: Frame, upstream: Upstream) -> FrameOutcome:
         """Run the solver alone on a stored upstream, with `run`'s checks, time limit, timing and failure handling.
@@ -195,11 +185,9 @@ class Pipeline:
     def run(self, frame: Frame) -> FrameOutcome:
         """Run every stage on one frame; never raises for a stage's failure, only for the user's Ctrl-C.
 
-        The whole frame runs under the time limiter (one thread hand-off per frame, not per stage), or in the child
-        process when isolated; a frame that overruns is failed in the name of the stage that was running.
+        The whole frame runs under the time limiter (one thread hand-off per frame, not per stage); a frame that
+        overruns is failed in the name of the stage that was running.
         """
-        if self.isolation is not None:
-            return self.isolation.run(self, frame)
         return self.run_here(frame, self.limiter)
 
     def run_here(

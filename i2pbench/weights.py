@@ -100,7 +100,7 @@ def import_weights(registry: Any, importer: str, source: str | Path, out: str | 
     method = owners[importer]
     module, _, function = method.importers[importer].partition(":")
     imported = getattr(importlib.import_module(module), function)(source)
-    pipeline = Pipeline.build(registry, expand([method.row(imported.size)], {}, None, registry)[0], isolate="thread")
+    pipeline = Pipeline.build(registry, expand([method.row(imported.size)], {}, None, registry)[0])
     for kind, module_ in pipeline.learned_modules().items():
         try:
             module_.load_state_dict(imported.state[kind])

@@ -11,6 +11,7 @@ from i2pbench.api import Encoder2D, Extractor2D, Features, Keypoints2D, Matcher,
 from i2pbench.batching import BatchForward
 from i2pbench.calling import StageInputs, call_stage
 from i2pbench.contracts import ContractError
+from i2pbench.isolation import isolated
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.protocol import Protocol
 from i2pbench.testing import check_component, synthetic_frame
@@ -187,7 +188,7 @@ def test_the_per_frame_training_fallback_refuses_a_bad_output_naming_the_stage()
 
 def test_an_isolated_run_returns_the_same_trace():
     frame, here = toy_frame(), pipeline(encoder2d=toy_plugin.ConstantEncoder())
-    there = Pipeline(here.combination, here.stages, timeout_s=None, isolate="process")
+    there = isolated(Pipeline(here.combination, here.stages, timeout_s=None), "process")
     a, b = here.run(frame), there.run(frame)
     assert [(r.kind, r.component) for r in a.records] == [(r.kind, r.component) for r in b.records]
     assert list(b.timings) == list(a.timings)

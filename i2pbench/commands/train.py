@@ -236,6 +236,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from ..devices import resolve_device
+    from ..isolation import isolated
     from ..pipeline import Pipeline
     from ..plugins import default_registry
     from ..runs.environment import fix_threads
@@ -248,7 +249,7 @@ def run(args: argparse.Namespace) -> int:
     registry = default_registry()
     train_set, val_set, mix = _datasets(registry, args, mix_specs, val_spec)
     torch.manual_seed(args.seed)  # initial weights: two runs with one seed start (and end) alike
-    pipeline = Pipeline.build(registry, _combination(registry, args))
+    pipeline = isolated(Pipeline.build(registry, _combination(registry, args)))
     init = _init_2d(pipeline, args.init_2d) if args.init_2d else {}
     config = train_config(args, str(device))
     if args.epochs is not None:

@@ -15,6 +15,7 @@ from typing import Any
 from .. import layers
 from ..components import Component
 from ..data.base import Dataset
+from ..isolation import isolated
 from ..pipeline import Combination, Pipeline, stage_classes
 from ..plugins import Registry
 from ..protocol import Protocol
@@ -96,10 +97,10 @@ def _build(registry: Registry, combination: Combination) -> Pipeline:
     sync_torch_threads()
     torch = sys.modules.get("torch")
     if torch is None:
-        return Pipeline.build(registry, combination)
+        return isolated(Pipeline.build(registry, combination))
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(UNTRAINED_SEED)
-        return Pipeline.build(registry, combination)
+        return isolated(Pipeline.build(registry, combination))
 
 
 def labels(job: Job) -> dict[str, str]:
