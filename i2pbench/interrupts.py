@@ -6,9 +6,9 @@ KeyboardInterrupt), and a frame compares the count before and after. Where SIGIN
 (outside the main thread, or with SIGINT ignored) every KeyboardInterrupt is the plugin's. Where the application
 installed a SIGINT handler of its own, it is left alone and a KeyboardInterrupt stops the run, as it always did.
 
-A run stopped by Ctrl-C (`stopped`) prints no traceback: its workers are stopped (the executors terminate their
-processes), every finished frame stays in the store, the invocation is marked, and the board of what finished is
-printed with one line saying how much was kept; the same command then resumes from the store.
+A run stopped by Ctrl-C prints no traceback: its workers are stopped (the executors terminate their processes and
+raise `Interrupted`), every finished frame stays in the store, and `run` says what was kept
+(`i2pbench.commands.run_notes.stopped`); the same command then resumes from the store.
 """
 
 from __future__ import annotations
@@ -50,46 +50,3 @@ class Interrupted(KeyboardInterrupt):
     def __init__(self, records: list[dict[str, Any]]) -> None:
         super().__init__()
         self.records = records
-
-
-EXIT_STATUS = 130  # 128 + SIGINT, what a shell reports for a process stopped by Ctrl-C
-
-
-def stopped(exc: KeyboardInterrupt, store: Any, invocation: Any, protocol: Any) -> int:
-    """After Ctrl-C in `run`: mark the invocation failed, print the board of the frames that finished (this
-    invocation's, and the stored ones the grid in progress reused) and one line saying what was kept."""
-    import sys
-
-    import pandas as pd
-
-    from . import leaderboard
-
-    records = _finished(getattr(exc, "records", []), store, invocation.id)
-    meta = invocation.meta
-    total = len(meta.get("frames", [])) * len(meta.get("combinations", [])) * len(meta.get("protocols", [0]))
-    invocation.fail(f"interrupted by Ctrl-C after {len(records)} of {total} frames")
-    if len(records):
-        print(leaderboard.to_markdown(leaderboard.build(pd.DataFrame(records), protocol)))
-    mine = int((records["invocation"] == invocation.id).sum()) if "invocation" in records else 0
-    print(
-        f"i2pbench: interrupted (Ctrl-C): workers stopped; {len(records)} of {total} frames finished ({mine} computed "
-        f"by this run), all kept in {store.frames_dir}; the board above is of those; the same command resumes",
-        file=sys.stderr,
-    )
-    return EXIT_STATUS
-
-
-def _finished(records: list[dict[str, Any]], store: Any, invocation: str):
-    """The grid's finished records, with those this invocation stored that never reached the driver (a worker's
-    last frames, an earlier protocol's grid), each (frame, row, protocol) once."""
-    import pandas as pd
-
-    from .runs.store import ResultsStore
-
-    stored = ResultsStore(store.root).load()  # opening it sweeps the temp file of a frame a worker was writing
-    stored = stored[stored["invocation"] == invocation] if "invocation" in stored else stored.iloc[:0]
-    both = pd.concat([pd.DataFrame(records), stored], ignore_index=True)
-    if both.empty:
-        return both
-    keys = [c for c in ("frame_id", "combination", "weights", "protocol") if c in both]
-    return both.drop_duplicates(subset=keys).reset_index(drop=True)

@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         invocation.fail(str(exc))
         raise
     except KeyboardInterrupt as exc:  # Ctrl-C: workers stopped, finished frames kept, the board of those printed
-        from ..interrupts import stopped
+        from .run_notes import stopped
 
         return stopped(exc, store, invocation, protocols[0])
     board = leaderboard.build(records, protocols[0])

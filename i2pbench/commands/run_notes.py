@@ -1,10 +1,12 @@
 """What `i2pbench run` says after its board: why frames failed, counted by reason, and which reused frames were timed
-at other thread counts (the board shows counts and latencies; these lines say what lies behind them)."""
+at other thread counts (the board shows counts and latencies; these lines say what lies behind them); and what it
+says when Ctrl-C stopped it."""
 
 from __future__ import annotations
 
 import argparse
 import re
+from typing import Any
 
 
 def failure_reasons(records, most: int = 10) -> list[str]:
@@ -47,3 +49,46 @@ def latency_reused(records, invocation: str, threads: int, args: argparse.Namesp
         f"note: the latency of {len(other)} frame(s) reused from the cache was measured at {at} thread(s), not "
         f"this run's {', '.join(str(int(t)) for t in sorted(own))}; --overwrite measures them again"
     ]
+
+
+EXIT_STATUS = 130  # 128 + SIGINT, what a shell reports for a process stopped by Ctrl-C
+
+
+def stopped(exc: KeyboardInterrupt, store: Any, invocation: Any, protocol: Any) -> int:
+    """After Ctrl-C in `run`: mark the invocation failed, print the board of the frames that finished (this
+    invocation's, and the stored ones the grid in progress reused) and one line saying what was kept."""
+    import sys
+
+    import pandas as pd
+
+    from .. import leaderboard
+
+    records = _finished(getattr(exc, "records", []), store, invocation.id)
+    meta = invocation.meta
+    total = len(meta.get("frames", [])) * len(meta.get("combinations", [])) * len(meta.get("protocols", [0]))
+    invocation.fail(f"interrupted by Ctrl-C after {len(records)} of {total} frames")
+    if len(records):
+        print(leaderboard.to_markdown(leaderboard.build(pd.DataFrame(records), protocol)))
+    mine = int((records["invocation"] == invocation.id).sum()) if "invocation" in records else 0
+    print(
+        f"i2pbench: interrupted (Ctrl-C): workers stopped; {len(records)} of {total} frames finished ({mine} computed "
+        f"by this run), all kept in {store.frames_dir}; the board above is of those; the same command resumes",
+        file=sys.stderr,
+    )
+    return EXIT_STATUS
+
+
+def _finished(records: list[dict[str, Any]], store: Any, invocation: str):
+    """The grid's finished records, with those this invocation stored that never reached the driver (a worker's
+    last frames, an earlier protocol's grid), each (frame, row, protocol) once."""
+    import pandas as pd
+
+    from ..runs.store import ResultsStore
+
+    stored = ResultsStore(store.root).load()  # opening it sweeps the temp file of a frame a worker was writing
+    stored = stored[stored["invocation"] == invocation] if "invocation" in stored else stored.iloc[:0]
+    both = pd.concat([pd.DataFrame(records), stored], ignore_index=True)
+    if both.empty:
+        return both
+    keys = [c for c in ("frame_id", "combination", "weights", "protocol") if c in both]
+    return both.drop_duplicates(subset=keys).reset_index(drop=True)
