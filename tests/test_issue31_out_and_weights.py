@@ -76,3 +76,12 @@ def test_auto_leaving_the_default_pipeline_untrained_for_another_extractor_says_
     assert "extractor2d 'lsd' (this row: 'canny')" in note and note.endswith(f"--weights {SHIPPED} uses them anyway")
     board = next(line for line in done.stdout.splitlines() if "| canny > " in line)
     assert "| untrained" in board  # what the note explains
+
+
+def test_evaluate_out_is_checked_as_runs_is(tmp_path):
+    assert _run(tmp_path, *CLASSIC).returncode == 0
+    run = tmp_path / "runs" / "kitti-all"
+    assert_refused(i2pbench("evaluate", str(run), "--out", os.devnull, cwd=tmp_path), f"--out {os.devnull} is not")
+    done = i2pbench("evaluate", str(run), "--out", str(tmp_path / "again.md"), cwd=tmp_path)
+    assert done.returncode == 0 and f"--out {tmp_path / 'again.md'} is taken as the stem" in done.stderr
+    assert (tmp_path / "again.csv").is_file() and not (tmp_path / "again.md.csv").exists()

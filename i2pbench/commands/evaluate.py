@@ -44,9 +44,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import leaderboard
     from ..errors import I2PBenchError
+    from ..out_stem import board_stem
     from ..runs import board_env
     from ..runs.evaluate import evaluate
 
+    args.out = board_stem(args.out)  # as run's: a device or folder refused, board.csv read as the stem board
     thresholds = {field: getattr(args, field) for field, *_ in THRESHOLDS.values()}
     if args.rules or args.rules_only:
         from .evaluate_rules import run_rules
