@@ -10,8 +10,9 @@ work with the wrong one, as they would with a bad calibration.
 A corruption that `moves_cloud` (a tilted mount) returns a rigid motion M of the scan from `motion` instead of
 changing the frame: the protocol composes it into its own random transform, T = T_rand @ M, so the ground truth stays
 the truth, T_gt = T_cam_lidar @ inv(T). A corruption that `needs` an optional field of the frame (the ego motion) does
-not apply to a frame without it: `protocols` leaves it out of `all` for such data and refuses it by name, before any
-frame runs, and a frame that still meets it stops the run (`NotApplicable`), so it never becomes a 0 % row.
+not apply to a frame without it: `i2pbench.grid.protocols` leaves it out of `all` for such data and refuses it by
+name, before any frame runs, and a frame that still meets it stops the run (`NotApplicable`), so it never becomes a
+0 % row.
 
 Severity 0 is the identity; severities 1..len(levels) pick the corruption's parameter from its table `levels`
 (docs/robustness.md lists every table). The randomness comes from the protocol's generator for (seed, dataset, frame
@@ -21,8 +22,6 @@ id, corruption, severity), so a corrupted frame never depends on run order or on
 from __future__ import annotations
 
 import dataclasses
-import functools
-import sys
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -32,8 +31,6 @@ if TYPE_CHECKING:  # numpy and the frame are imported where frames are checked: 
     import numpy as np
 
     from .data.base import Dataset
-    from .plugins import Registry
-    from .protocol import Protocol
     from .types import SensorFrame
 
 KINDS = ("image", "lidar", "geometry")
@@ -43,7 +40,6 @@ OPTIONAL = {"ego_motion": "the LiDAR's ego motion, which KITTI gives where <root
             "nuScenes from its ego poses (docs/datasets.md)"}  # fmt: skip  # what `needs` may name, and where from
 ROTATION_TOL = 1e-9  # |R^T R - I| and |det R - 1| of a corruption's motion: it is computed, not read from a file
 MIN_LEVELS, MAX_LEVELS = 3, 5
-CLEAN, ALL = "clean", "all"  # --corruption words: the uncorrupted protocol, every registered corruption
 
 
 class CorruptionError(I2PBenchError):
@@ -247,66 +243,3 @@ def unavailable(corruption: Corruption, dataset: Dataset, frame_ids: Sequence[st
         return ""
     first, why = lacking[0]
     return f"{len(lacking)} of the {len(frame_ids)} {dataset.name} frames (the first {first}) cannot take it: {why}"
-
-
-def protocols(
-    registry: Registry,
-    base: Protocol,
-    specs: Sequence[str],
-    severities: Sequence[int] | None = None,
-    dataset: Dataset | None = None,
-    frame_ids: Sequence[str] | None = None,
-) -> list[Protocol]:
-    """The protocols `--corruption` names, in order, each once: `clean`, `NAME` (every severity, or `severities`),
-    `NAME:S`, or `all` (every registered corruption that applies, as NAME).
-
-    A corruption runs on every frame of the run or on none, so its rows cover the clean rows' frames. Given the
-    `dataset` (and the `frame_ids` to run, default all), one that needs what a frame lacks is left out of `all`
-    (said on stderr) and refused by name; without it, `all` leaves out every corruption with `needs` (nothing to
-    check them against) and a named one stops the run at the first frame it does not apply to."""
-    ids = None if dataset is None else list(frame_ids if frame_ids is not None else dataset.frame_ids())
-    reason = functools.cache(lambda name: _unavailable(registry.corruption(name)(), dataset, ids))
-    out: list[Protocol] = []
-    for spec in specs:
-        name, sep, severity = spec.partition(":")
-        if name == CLEAN:
-            chosen = [base]
-        else:
-            if name != ALL and dataset is not None and reason(name):
-                raise NotApplicable(f"--corruption {spec}: {reason(name)}")
-            names = _applicable(registry, reason) if name == ALL else [name]
-            chosen = [p for n in names for p in _of(registry, base, n, severity if sep else None, severities)]
-        out += [p for p in chosen if p not in out]
-    return out
-
-
-def _unavailable(corruption: Corruption, dataset: Dataset | None, frame_ids: Sequence[str] | None) -> str:
-    if dataset is None or frame_ids is None:
-        return f"it needs {', '.join(corruption.needs)}, with no dataset to check" if corruption.needs else ""
-    return unavailable(corruption, dataset, frame_ids)
-
-
-def _applicable(registry: Registry, reason: Callable[[str], str]) -> list[str]:
-    """Every registered corruption that applies, by name; each left out is said on stderr, with why."""
-    names = []
-    for name in sorted(registry.corruptions):
-        if reason(name):
-            print(f"i2pbench: note: corruption {name!r} left out of 'all': {reason(name)}", file=sys.stderr)
-        else:
-            names.append(name)
-    return names
-
-
-def _of(
-    registry: Registry, base: Protocol, name: str, severity: str | None, severities: Sequence[int] | None
-) -> list[Protocol]:
-    corruption = registry.corruption(name)()
-    if severity is not None:
-        if not severity.isdigit():
-            raise PluginError(
-                f"--corruption {name}:{severity}: the severity must be a number 1..{len(corruption.levels)}"
-            )
-        chosen: Sequence[int] = [int(severity)]
-    else:
-        chosen = [s for s in corruption.severities if severities is None or s in severities]
-    return [base.corrupted(corruption, s) for s in chosen]

@@ -1,20 +1,29 @@
-"""Turning CLI options, presets and YAML grid files into the list of combinations to run."""
+"""Turning CLI options, presets and YAML grid files into the list of combinations to run, and `--corruption` specs
+into the protocols to run them under."""
 
 from __future__ import annotations
 
+import functools
 import itertools
-from collections.abc import Mapping, Sequence
+import sys
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from . import yaml_input
 from .components import STAGE_BASES, STAGE_ORDER, overlay
+from .corruptions import Corruption, NotApplicable, unavailable
 from .errors import PluginError
 from .pipeline import NONE, REQUIRED_STAGES, Combination
 from .plugins import Registry
+from .protocol import Protocol
+
+if TYPE_CHECKING:
+    from .data.base import Dataset
 
 GRID_KEYS = ("base", "grid", "confs")
+CLEAN, ALL = "clean", "all"  # --corruption words: the uncorrupted protocol, every registered corruption
 
 
 OPTIONAL_STAGES = tuple(k for k in STAGE_ORDER if k not in REQUIRED_STAGES)
@@ -166,3 +175,66 @@ def load_grid_file(path: str | Path) -> GridFile:
 def _name(value: Any) -> str:
     """YAML reads a bare `null`/`~` as None: for a stage that means "none" (skipped)."""
     return NONE if value is None else str(value)
+
+
+def protocols(
+    registry: Registry,
+    base: Protocol,
+    specs: Sequence[str],
+    severities: Sequence[int] | None = None,
+    dataset: Dataset | None = None,
+    frame_ids: Sequence[str] | None = None,
+) -> list[Protocol]:
+    """The protocols `--corruption` names, in order, each once: `clean`, `NAME` (every severity, or `severities`),
+    `NAME:S`, or `all` (every registered corruption that applies, as NAME).
+
+    A corruption runs on every frame of the run or on none, so its rows cover the clean rows' frames. Given the
+    `dataset` (and the `frame_ids` to run, default all), one that needs what a frame lacks is left out of `all`
+    (said on stderr) and refused by name; without it, `all` leaves out every corruption with `needs` (nothing to
+    check them against) and a named one stops the run at the first frame it does not apply to."""
+    ids = None if dataset is None else list(frame_ids if frame_ids is not None else dataset.frame_ids())
+    reason = functools.cache(lambda name: _unavailable(registry.corruption(name)(), dataset, ids))
+    out: list[Protocol] = []
+    for spec in specs:
+        name, sep, severity = spec.partition(":")
+        if name == CLEAN:
+            chosen = [base]
+        else:
+            if name != ALL and dataset is not None and reason(name):
+                raise NotApplicable(f"--corruption {spec}: {reason(name)}")
+            names = _applicable(registry, reason) if name == ALL else [name]
+            chosen = [p for n in names for p in _of(registry, base, n, severity if sep else None, severities)]
+        out += [p for p in chosen if p not in out]
+    return out
+
+
+def _unavailable(corruption: Corruption, dataset: Dataset | None, frame_ids: Sequence[str] | None) -> str:
+    if dataset is None or frame_ids is None:
+        return f"it needs {', '.join(corruption.needs)}, with no dataset to check" if corruption.needs else ""
+    return unavailable(corruption, dataset, frame_ids)
+
+
+def _applicable(registry: Registry, reason: Callable[[str], str]) -> list[str]:
+    """Every registered corruption that applies, by name; each left out is said on stderr, with why."""
+    names = []
+    for name in sorted(registry.corruptions):
+        if reason(name):
+            print(f"i2pbench: note: corruption {name!r} left out of 'all': {reason(name)}", file=sys.stderr)
+        else:
+            names.append(name)
+    return names
+
+
+def _of(
+    registry: Registry, base: Protocol, name: str, severity: str | None, severities: Sequence[int] | None
+) -> list[Protocol]:
+    corruption = registry.corruption(name)()
+    if severity is not None:
+        if not severity.isdigit():
+            raise PluginError(
+                f"--corruption {name}:{severity}: the severity must be a number 1..{len(corruption.levels)}"
+            )
+        chosen: Sequence[int] = [int(severity)]
+    else:
+        chosen = [s for s in corruption.severities if severities is None or s in severities]
+    return [base.corrupted(corruption, s) for s in chosen]

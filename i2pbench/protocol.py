@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import DataError
+from .errors import DataError, I2PBenchError
 from .geometry import invert, make_transform, rot_z, transform_points
 from .types import Frame, SensorFrame
 
@@ -95,14 +95,14 @@ class Protocol:
         return dataclasses.replace(self, corruption=corruption.name, severity=severity, corrupter=corruption)
 
     def component(self) -> Corruption | None:
-        """The corruption component: the resolved one, or (for a card read back) the installed one of that name."""
+        """The corruption component (None under the clean protocol). A card read back names its corruption only:
+        whoever reads it resolves the component from the registry (`report.rundir.resolved`) before frames run."""
         if not self.corruption:
             return None
-        if self.corrupter is not None:
-            return self.corrupter
-        from .plugins import default_registry
-
-        return default_registry().corruption(self.corruption)()
+        if self.corrupter is None:
+            raise I2PBenchError(f"protocol {self.identity()} names corruption {self.corruption!r} but holds no "
+                                "component: resolve it from the registry first")  # fmt: skip
+        return self.corrupter
 
     def corrupt(self, sensor: SensorFrame) -> SensorFrame:
         """The dataset's frame as the corrupted sensors deliver it (itself, under the clean protocol)."""

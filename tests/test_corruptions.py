@@ -16,11 +16,13 @@ import toy_plugin
 
 from i2pbench import leaderboard
 from i2pbench.api import Corruption, hookimpl
-from i2pbench.corruptions import CorruptionError, protocols
-from i2pbench.errors import PluginError
+from i2pbench.corruptions import CorruptionError
+from i2pbench.errors import I2PBenchError, PluginError
+from i2pbench.grid import protocols
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import build_registry, components_of, default_registry
 from i2pbench.protocol import Protocol
+from i2pbench.report.rundir import resolved
 from i2pbench.runs.runner import frame_key, prepare, run_grid, true_matches
 from i2pbench.runs.store import ResultsStore
 from i2pbench.runs.upstream import StoredUpstream
@@ -389,6 +391,18 @@ def test_the_clean_card_and_identity_are_those_before_corruptions_existed():
     corrupted = Protocol(seed=3).corrupted(Vignette(), 2)
     assert corrupted.card()["corruption"] == "vignette" and corrupted.card()["severity"] == 2
     assert Protocol(**corrupted.card()) == corrupted and corrupted.identity() != Protocol(seed=3).identity()
+
+
+def test_a_card_read_back_names_its_corruption_and_its_reader_resolves_the_component(third_party):
+    sensor = scan()
+    corrupted = Protocol(seed=3).corrupted(Vignette(), 2)
+    read_back = Protocol(**corrupted.card())  # as the report reads a run's card
+    with pytest.raises(I2PBenchError, match="names corruption 'vignette' but holds no component"):
+        read_back.apply(sensor)
+    again = resolved(third_party, read_back)
+    assert type(again.component()) is Vignette and again == corrupted
+    assert np.array_equal(again.apply(sensor).image, corrupted.apply(sensor).image)
+    assert resolved(third_party, Protocol(seed=3)) == Protocol(seed=3)  # the clean card has nothing to resolve
 
 
 def _records(corruption: str, severity: int, successes: list[bool]) -> pd.DataFrame:

@@ -15,11 +15,12 @@ import pytest
 from test_corruptions import conformance_sensor, scan
 
 from i2pbench.api import Corruption
-from i2pbench.corruptions import CorruptionError, NotApplicable, check_class, protocols
+from i2pbench.corruptions import CorruptionError, NotApplicable, check_class
 from i2pbench.data.base import Dataset
 from i2pbench.data.kitti import KittiOdometry, read_frame
 from i2pbench.errors import DataError, PluginError
 from i2pbench.geometry import in_image, invert, make_transform, project, rot_z, transform_points
+from i2pbench.grid import protocols
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import default_registry
 from i2pbench.protocol import Protocol

@@ -178,8 +178,8 @@ def _protocols(registry, base, args: argparse.Namespace, dataset, frame_ids: lis
     """The protocols to run, each a set of rows: the clean one, or those `--corruption` / `--robustness` name; a
     corruption the run's frames cannot take (time-offset without ego motion) is left out of `all` with a note, and
     refused before any frame runs when named."""
-    from ..corruptions import ALL, CLEAN, protocols
     from ..errors import PluginError
+    from ..grid import ALL, CLEAN, protocols
 
     specs = [*([CLEAN, ALL] if args.robustness else []), *(args.corruption or [])]
     if not specs:

@@ -15,9 +15,10 @@ from tqdm import tqdm
 
 from ..errors import I2PBenchError
 from ..plugins import default_registry
+from ..protocol import Protocol
 from . import overlay
 from .curves import rows
-from .rundir import RunDir, best_and_worst, open_dataset, pose, reload_frame
+from .rundir import RunDir, best_and_worst, open_dataset, pose, reload_frame, resolved
 
 JPEG_QUALITY = 85  # overlays are photographs with dots: JPEG keeps the page a few MB where PNG would be tens
 
@@ -46,21 +47,22 @@ def render_examples(
     picks = pick(run, board, n_rows)
     if not picks:
         return [], []
+    registry = default_registry()
     try:
-        dataset = open_dataset(default_registry(), run.dataset, data_root)
+        dataset = open_dataset(registry, run.dataset, data_root)
     except I2PBenchError as exc:
         return [], [f"overlays left out: cannot open the run's dataset ({exc}); pass --data-root"]
     examples, notes = [], []
     for kind, label, record in tqdm(picks, disable=quiet, unit="overlay"):
         try:
-            examples.append(_example(dataset, run, kind, label, record))
+            examples.append(_example(dataset, resolved(registry, run.protocol), kind, label, record))
         except I2PBenchError as exc:
             notes.append(f"{kind} frame of {label} ({record['frame_id']}) not drawn: {exc}")
     return examples, notes
 
 
-def _example(dataset, run: RunDir, kind: str, label: str, record: pd.Series) -> Example:
-    frame = reload_frame(dataset, run.protocol, record)
+def _example(dataset, protocol: Protocol, kind: str, label: str, record: pd.Series) -> Example:
+    frame = reload_frame(dataset, protocol, record)
     panels = overlay.pose_panels(frame, pose(record, "T_pred"), failure=str(record.get("error", "")))
     title = f"{kind} frame of {label}: {record['frame_id']}"
     return Example(title, stored_errors(record), jpeg(overlay.compose(panels)))

@@ -7,6 +7,7 @@ reproduces the exact registration problem (the protocol's transform depends only
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -110,6 +111,13 @@ def pose(record: pd.Series, key: str) -> np.ndarray | None:
     """A stored 4 x 4 pose (records keep them as 16 floats, None for a failed solve)."""
     value = record.get(key)
     return None if value is None or len(value) != 16 else np.asarray(value, dtype=np.float64).reshape(4, 4)
+
+
+def resolved(registry: Any, protocol: Protocol) -> Protocol:
+    """`protocol` with its corruption's component, the registry's of that name: the run's card names it only."""
+    if not protocol.corruption or protocol.corrupter is not None:
+        return protocol
+    return dataclasses.replace(protocol, corrupter=registry.corruption(protocol.corruption)())
 
 
 def reload_frame(dataset: Any, protocol: Protocol, record: pd.Series) -> Frame:
