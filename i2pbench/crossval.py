@@ -12,8 +12,9 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import pandas as pd
 
+from .installed_metrics import by_name
 from .leaderboard import ACC_SKILL, TRUE_MATCHES
-from .metric_registry import BUILTIN, by_name
+from .metric_registry import BUILTIN
 from .protocol import Protocol
 
 BOOTSTRAP_DRAWS = 2000

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import metric_registry, uncertainty
+from . import installed_metrics, metric_registry, uncertainty
 from .components import STAGE_ORDER
 from .metric_registry import (  # noqa: F401 (the board's column names, read from here by the other modules)
     ACC,
@@ -35,7 +35,8 @@ from .metric_registry import (  # noqa: F401 (the board's column names, read fro
 from .metrics import summarize
 from .protocol import Protocol
 from .scoring import recall
-from .scoring.cards import label, rescored
+from .scoring.cards import label
+from .scoring.installed import rescored
 
 GROUP = ["dataset", "split", "combination", "weights"]
 CONDITION = ["corruption", "severity"]  # a row's protocol corruption; "" for clean rows
@@ -71,7 +72,7 @@ def _latency(records: pd.DataFrame) -> dict[str, float]:
 
 def _metric_cells(records: pd.DataFrame, protocol: Protocol, metrics: tuple[Metric, ...]) -> dict:
     """Each registered metric's aggregate under its column (and a mean's std and "mean ± std" text columns)."""
-    named = metric_registry.aggregates(records, protocol, metrics)
+    named = installed_metrics.aggregates(records, protocol, metrics)
     cells: dict = {}
     for metric in (m for m in metrics if m.column is not None):
         cells[metric.column] = named[metric.name]
@@ -113,7 +114,7 @@ def build(
     every installed one): clean rows first, then each corruption (in run order) by severity, and within each of
     those best Acc. first."""
     protocol = protocol or Protocol()
-    metrics = metrics if metrics is not None else metric_registry.active()
+    metrics = metrics if metrics is not None else installed_metrics.active()
     records = rescored(_with_condition(records), protocol)  # a non-default card's rules (scoring.cards)
     rows = [
         {**dict(zip(GROUP + CONDITION, key, strict=True)), **_row(group, protocol, metrics)}
@@ -201,7 +202,7 @@ def to_markdown(board: pd.DataFrame, columns: list[str] | None = None) -> str:
     """A Markdown table of `columns` (default DISPLAY, then the columns of metrics plugins registered with their
     intervals, less the columns that are empty in every row)."""
     if columns is None:
-        plugins = metric_registry.active()[len(metric_registry.BUILTIN) :]
+        plugins = installed_metrics.active()[len(metric_registry.BUILTIN) :]
         extra = _displayed([m.column for m in plugins if m.column], plugins)
         columns = [c for c in DISPLAY + extra if c in board and not (board[c].astype(str) == "").all()]
     shown = board[[c for c in columns if c in board]].copy()

@@ -1,7 +1,8 @@
 """Metrics, declared once: what each frame's record stores and what a leaderboard row aggregates from the records.
 
 The results store (`runs.frames`), the leaderboard (`leaderboard.build`, so `run` and `evaluate`), training
-validation and `compare --tolerance NAME=...` all read the `Metric`s here; none spells a metric out itself.
+validation and `compare --tolerance NAME=...` all read the `Metric`s here, with the plugins' ones
+(`installed_metrics`); none spells a metric out itself.
 
 To add a metric, declare it and register it from a plugin (or append it to BUILTIN for a core one):
 
@@ -23,7 +24,7 @@ bootstrap interval), "median" or "count"; NaN values are frames the aggregate le
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -149,9 +150,18 @@ def _geodesic(records: pd.DataFrame, protocol: Protocol) -> np.ndarray | None:
     return records["geodesic_deg"].replace(np.inf, np.nan).to_numpy(dtype=float)
 
 
-def _true_matches_recorded(scored: Scored) -> float:
-    from .runs.frames import true_matches
+def true_matches(frame: Frame | None, outcome: FrameOutcome) -> float:
+    """How many of the matcher's pairs are true under T_gt (within eps_c, or the matcher's own `Matches.radius_px`);
+    NaN when the matcher did not run."""
+    from .correspondence import true_match_mask  # scipy: only when a frame is scored
 
+    if frame is None or frame.T_gt is None or outcome.matched_uv is None or outcome.matched_xyz is None:
+        return float("nan")
+    radius = outcome.matches.radius_px if outcome.matches is not None else None
+    return float(true_match_mask(frame, outcome.matched_uv, outcome.matched_xyz, radius).sum())
+
+
+def _true_matches_recorded(scored: Scored) -> float:
     return true_matches(scored.frame, scored.outcome) if scored.outcome is not None else np.nan
 
 
@@ -193,33 +203,3 @@ def check(metric: Any, plugin: str) -> Metric:
     if metric.frame is None and metric.values is None:
         raise PluginError(f"plugin {plugin!r}: metric {metric.name!r} needs `frame` (per frame) or `values`")
     return metric
-
-
-def active() -> tuple[Metric, ...]:
-    """The built-in metrics, then those the installed plugins register (in plugin order)."""
-    from .plugins import default_registry
-
-    return BUILTIN + tuple(metric for metric, _ in default_registry().metrics.values())
-
-
-def record_values(scored: Scored, metrics: Iterable[Metric] | None = None) -> dict[str, float]:
-    """A frame's per-frame metrics, as its record stores them."""
-    return {m.name: m.frame(scored) for m in (active() if metrics is None else metrics) if m.frame is not None}
-
-
-def aggregates(records: pd.DataFrame, protocol: Protocol, metrics: Iterable[Metric] | None = None) -> dict[str, Any]:
-    """A row's aggregates by metric name (stds as `Metric.std`): what training validation reports."""
-    out: dict[str, Any] = {}
-    for metric in active() if metrics is None else metrics:
-        if metric.column is None:
-            continue
-        values = metric.per_frame(records, protocol)
-        out[metric.name] = metric.reduce(values)
-        if metric.std:
-            kept = pd.Series(values, dtype=float).dropna()
-            out[metric.std] = float(kept.std(ddof=0)) if len(kept) else np.nan
-    return out
-
-
-def by_name(metrics: Iterable[Metric] | None = None) -> dict[str, Metric]:
-    return {m.name: m for m in (active() if metrics is None else metrics)}

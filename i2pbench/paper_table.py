@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from . import metric_registry, uncertainty
+from . import installed_metrics, uncertainty
 from .errors import I2PBenchError
 from .grid import expand
 from .leaderboard import ACC, ACC_SKILL, CHANCE, LATENCY_MEDIAN, MODEL_SIZE, RRE, RTE, TRUE_MATCHES, to_markdown
@@ -94,7 +94,7 @@ def build(rows: list[TableRow], boards: dict[str, pd.DataFrame]) -> pd.DataFrame
 def _versus_above(rows: list[pd.Series | None]) -> list[str]:
     """Each row's Acc. against the row above on one dataset: "no (McNemar p=...)" when the difference is not
     significant, "yes (...)" when it is, "" where either row is missing or the boards keep no per-frame values."""
-    acc = metric_registry.by_name()["acc_pct"]
+    acc = installed_metrics.by_name()["acc_pct"]
     out = [""]
     for above, row in zip(rows, rows[1:], strict=False):
         test = uncertainty.paired(above, row, acc) if above is not None and row is not None else None

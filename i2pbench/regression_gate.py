@@ -28,7 +28,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from . import metric_registry, uncertainty
+from . import installed_metrics, metric_registry, uncertainty
 from .components import STAGE_ORDER
 from .errors import I2PBenchError
 from .leaderboard import (
@@ -61,7 +61,7 @@ METRICS: dict[str, tuple[str, bool]] = {
 
 def known() -> dict[str, tuple[str, bool]]:
     """METRICS and the metrics plugins register (under their names)."""
-    plugins = metric_registry.active()[len(metric_registry.BUILTIN) :]
+    plugins = installed_metrics.active()[len(metric_registry.BUILTIN) :]
     return {**METRICS, **{m.name: (m.column, bool(m.higher_is_better)) for m in plugins if m.column}}
 
 
@@ -271,7 +271,7 @@ def _check_row(key: tuple, new: pd.Series, base: pd.Series, tolerances: list[Tol
     findings = []
     if "frames" in base and _value(new, "frames") != _value(base, "frames"):
         findings.append((Finding(key, "frames", _value(base, "frames"), _value(new, "frames")), True))
-    tested = {m.column: m for m in uncertainty.with_interval(metric_registry.active())}
+    tested = {m.column: m for m in uncertainty.with_interval(installed_metrics.active())}
     for tol in tolerances:
         b, n = _value(base, tol.column), _value(new, tol.column)
         test = uncertainty.paired(new, base, tested[tol.column]) if tol.column in tested else None

@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from . import metric_registry
+from . import installed_metrics
 from .batching import BatchForward, to_device
 from .components import TrainableMatcher
 from .data.base import Dataset
@@ -305,7 +305,7 @@ class Trainer:
         protocol, job = Protocol(), Job(self.pipeline.combination, self.pipeline, str(self.device))
         ids = spread(self.val_set.frame_ids(), self.config.val_frames)
         records = pd.DataFrame([run_frame(job, self.val_set, frame_id, protocol) for frame_id in ids])
-        stats = metric_registry.aggregates(records, protocol) if len(records) else {}
+        stats = installed_metrics.aggregates(records, protocol) if len(records) else {}
         if len(records):
             stats["kept"] = summarize(records["rte_m"], records["rre_deg"], protocol)["kept"]
         numbers = {k: float(v) for k, v in stats.items() if isinstance(v, int | float) and not math.isnan(v)}

@@ -28,7 +28,7 @@ from i2pbench.geometry import invert
 from i2pbench.hookspecs import hookimpl
 from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
-from i2pbench.scoring import cards
+from i2pbench.scoring import cards, installed
 from i2pbench.scoring.cards import NATIVE, ProtocolCard
 from i2pbench.scoring.rules import ScoringRules
 from i2pbench.scoring.score import frame_errors, score
@@ -95,7 +95,7 @@ def test_the_frames_errors_are_the_chosen_ones():
 
 def test_edgeregnet_a_failure_is_an_infinite_miss_and_the_filter_keeps_rre_below_10_rte_below_5():
     # successes A, B, H of 8; kept A, B, C, F, G, H (D infinite, E beyond both thresholds)
-    result = score(FRAMES, cards.find("edgeregnet").rules)
+    result = score(FRAMES, installed.find("edgeregnet").rules)
     check(result, 300 / 8, [1, 1.5, 0.5, 3, 4, 0.2], [2, 3, 6, 8, 0, 1], scored=8)
     assert result["rte_mean"] == pytest.approx(1.7) and result["rte_std"] == pytest.approx(math.sqrt(11.2 / 6))
 
@@ -103,25 +103,25 @@ def test_edgeregnet_a_failure_is_an_infinite_miss_and_the_filter_keeps_rre_below
 @pytest.mark.parametrize("name", ["corri2p", "vp2p-match"])
 def test_corri2p_and_vp2p_score_a_failure_as_identity_and_average_every_frame(name):
     # D as the identity pose: RTE = ||t_gt|| = 5, RRE = 40 (a yaw); no filter, so E's 6 m and 20° count too
-    check(score(FRAMES, cards.find(name).rules), 300 / 8, [1, 1.5, 0.5, 5, 6, 3, 4, 0.2],
+    check(score(FRAMES, installed.find(name).rules), 300 / 8, [1, 1.5, 0.5, 5, 6, 3, 4, 0.2],
           [2, 3, 6, 40, 20, 8, 0, 1], scored=8)  # fmt: skip
 
 
 def test_deepi2p_caps_the_translation_and_leaves_out_an_all_inlier_frame():
     # H (50 of 50 matches inliers: cost 0) is left out; G's ||t_pred|| = 15 >= 14.14 becomes the identity: RTE 11
-    check(score(FRAMES, cards.find("deepi2p").rules), 200 / 7, [1, 1.5, 0.5, 5, 6, 3, 11],
+    check(score(FRAMES, installed.find("deepi2p").rules), 200 / 7, [1, 1.5, 0.5, 5, 6, 3, 11],
           [2, 3, 6, 40, 20, 8, 0], scored=7)  # fmt: skip
 
 
 def test_cofii2p_skips_a_failure_and_counts_successes_at_10_deg_5_m_over_the_solved_frames():
     # D never recorded; of 7, all but E pass (10°, 5 m); mean and std over those 6
-    check(score(FRAMES, cards.find("cofii2p").rules), 600 / 7, [1, 1.5, 0.5, 3, 4, 0.2], [2, 3, 6, 8, 0, 1],
+    check(score(FRAMES, installed.find("cofii2p").rules), 600 / 7, [1, 1.5, 0.5, 3, 4, 0.2], [2, 3, 6, 8, 0, 1],
           scored=7)  # fmt: skip
 
 
 def test_icl_reads_only_yaw_and_the_difference_of_translations():
     # A, E and H are pitch errors (0°); C's yaw part is 3°, so C succeeds here where the xzy sum fails it
-    check(score(FRAMES, cards.find("icl").rules), 400 / 8, [1, 1.5, 0.5, 5, 6, 3, 4, 0.2],
+    check(score(FRAMES, installed.find("icl").rules), 400 / 8, [1, 1.5, 0.5, 5, 6, 3, 4, 0.2],
           [0, 3, 3, 40, 0, 8, 0, 0], scored=8)  # fmt: skip
 
 
@@ -137,16 +137,16 @@ def test_ddof_1_divides_by_n_minus_1():
 
 def test_a_frame_without_ground_truth_is_infinite_under_identity_rules_and_skipped_when_failures_are():
     broken = pd.concat([FRAMES.loc[["A"]], pd.DataFrame([{**FRAMES.loc["B"].to_dict(), "T_gt": None}])])
-    assert score(broken, cards.find("corri2p").rules)["rte_mean"] == math.inf
-    assert score(broken, cards.find("cofii2p").rules)["scored"] == 1
+    assert score(broken, installed.find("corri2p").rules)["rte_mean"] == math.inf
+    assert score(broken, installed.find("cofii2p").rules)["scored"] == 1
 
 
 def test_the_default_card_is_the_protocol_every_stored_result_was_made_under():
     # the identity of every clean record in the committed stores; a new field must never move it
     assert Protocol().identity() == "71a877f2ef9c7dc4"
-    assert cards.find("edgeregnet").protocol().identity() == "71a877f2ef9c7dc4"
-    assert cards.find("edgeregnet").protocol(seed=3) == Protocol(seed=3)
-    corri2p = cards.find("corri2p").protocol()
+    assert installed.find("edgeregnet").protocol().identity() == "71a877f2ef9c7dc4"
+    assert installed.find("edgeregnet").protocol(seed=3) == Protocol(seed=3)
+    corri2p = installed.find("corri2p").protocol()
     assert corri2p.card()["name"] == "corri2p" and corri2p.card()["version"] == 1
     assert corri2p.identity() != Protocol().identity()
     assert Protocol(**corri2p.card()) == corri2p  # read back from an invocation record
@@ -155,13 +155,13 @@ def test_the_default_card_is_the_protocol_every_stored_result_was_made_under():
 def test_a_run_can_give_every_card_its_kitti_inputs_but_deepi2ps_and_no_accumulated_sweeps():
     assert [c.name for c in cards.BUILTIN if not c.unmet("kitti")] == ["edgeregnet", "corri2p", "vp2p-match",
                                                                          "cofii2p", "icl"]  # fmt: skip
-    assert cards.find("deepi2p").unmet("kitti") == [
+    assert installed.find("deepi2p").unmet("kitti") == [
         "sweeps: 3 sweeps accumulated (i2pbench: the frame's sweep)",
         "frame: another frame's image, up to 10 m away (i2pbench: the scan's own frame)",
     ]
-    assert cards.find("cofii2p").unmet("nuscenes") == ["sweeps: 3 sweeps accumulated (i2pbench: the frame's sweep)"]
-    assert cards.find("icl").unmet("nuscenes") == ["ICL (ICL-I2PReg)'s code has no nuscenes pipeline to follow"]
-    corri2p = cards.find("corri2p").protocol(0, "kitti").card()
+    assert installed.find("cofii2p").unmet("nuscenes") == ["sweeps: 3 sweeps accumulated (i2pbench: the frame's sweep)"]
+    assert installed.find("icl").unmet("nuscenes") == ["ICL (ICL-I2PReg)'s code has no nuscenes pipeline to follow"]
+    corri2p = installed.find("corri2p").protocol(0, "kitti").card()
     assert {k: corri2p[k] for k in ("image_scale", "image_crop_h", "image_crop_w", "points", "voxel_m", "pose_frame")} \
         == {"image_scale": 0.5, "image_crop_h": 160, "image_crop_w": 512, "points": 40960, "voxel_m": 0.1,
             "pose_frame": "camera"}  # fmt: skip
@@ -188,8 +188,8 @@ class Geodesic:
 
 def test_a_plugin_registers_its_own_card_and_cannot_take_a_builtin_name():
     registry = build_registry(extra_plugins=(Geodesic(),), strict=True)
-    assert cards.find("geodesic-demo", registry).rules.rre == "geodesic"
-    assert list(cards.installed(registry))[:6] == ["edgeregnet", "corri2p", "deepi2p", "vp2p-match", "cofii2p",
+    assert installed.find("geodesic-demo", registry).rules.rre == "geodesic"
+    assert list(installed.installed(registry))[:6] == ["edgeregnet", "corri2p", "deepi2p", "vp2p-match", "cofii2p",
                                                      "icl"]  # fmt: skip
 
     class Clash:
@@ -203,7 +203,7 @@ def test_a_plugin_registers_its_own_card_and_cannot_take_a_builtin_name():
 
 def test_an_unknown_protocol_suggests_the_closest():
     with pytest.raises(Exception, match="did you mean 'corri2p'"):
-        cards.find("corri2")
+        installed.find("corri2")
 
 
 def test_the_cards_default_name_and_version_are_the_protocols():

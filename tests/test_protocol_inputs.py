@@ -9,7 +9,7 @@ import pytest
 from i2pbench.geometry import invert, transform_points
 from i2pbench.protocol import Protocol
 from i2pbench.protocol_inputs import image_geometry, sample, transform_K, voxel_means
-from i2pbench.scoring import cards
+from i2pbench.scoring import installed
 from i2pbench.types import SensorFrame
 
 K = np.array([[700.0, 0.0, 620.0], [0.0, 700.0, 188.0], [0.0, 0.0, 1.0]])
@@ -34,7 +34,7 @@ def test_resize_then_centre_crop_as_the_peers_loaders():
 def test_a_point_projects_where_the_resized_cropped_image_shows_it():
     xyz = np.array([[12.0, 1.5, -0.4], [20.0, -3.0, 0.5], [8.0, 0.2, 0.1]])
     sensor = frame(np.c_[xyz, np.full(3, 0.5)])
-    p = cards.find("corri2p").protocol(seed=4, dataset="kitti")
+    p = installed.find("corri2p").protocol(seed=4, dataset="kitti")
     got = p.apply(sensor)
     assert got.image.shape == (160, 512, 3) and len(got.points) == 40960  # 3 points, each repeated
     cam = transform_points(T_CL, xyz)

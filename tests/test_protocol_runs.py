@@ -10,7 +10,7 @@ from i2pbench.cli import main
 from i2pbench.hookspecs import hookimpl
 from i2pbench.protocol import Protocol
 from i2pbench.runs.store import ResultsStore
-from i2pbench.scoring import cards
+from i2pbench.scoring import installed
 from i2pbench.scoring.cards import NATIVE, ProtocolCard
 from i2pbench.scoring.rules import ScoringRules
 from i2pbench.scoring.score import score
@@ -52,7 +52,7 @@ def test_a_run_under_corri2p_is_scored_by_every_card_sharing_its_inputs(shared_d
     runs = tmp_path / "runs"
     assert run(shared_data, runs, "--protocol", "corri2p") == 0
     records = ResultsStore(runs / "kitti-all").load()
-    assert set(records["protocol"]) == {cards.find("corri2p").protocol(0, "kitti").identity()}
+    assert set(records["protocol"]) == {installed.find("corri2p").protocol(0, "kitti").identity()}
     board = leaderboard.read(runs / "leaderboards" / "kitti-all-canny-depth-oracle-epnp-ransac-corri2p.csv")
     assert board["protocol"].tolist() == ["corri2p v1"] and board[leaderboard.ACC].tolist() == [100.0]  # oracle
     assert main(["evaluate", str(runs / "kitti-all"), "--out", str(tmp_path / "again")]) == 0  # the card's rules
@@ -64,7 +64,7 @@ def test_a_run_under_corri2p_is_scored_by_every_card_sharing_its_inputs(shared_d
     err = capsys.readouterr().err
     table = pd.read_csv(tmp_path / "rules.csv")
     for name in ("corri2p", "vp2p-match", "icl"):  # 160 x 512, 40960 points, camera-frame poses: this run's inputs
-        expected = score(records, cards.find(name).rules)
+        expected = score(records, installed.find(name).rules)
         assert table[f"{name} Acc. (%)"].iloc[0] == round(expected["acc_pct"], 2) == 100.0
     for name in ("edgeregnet", "deepi2p", "cofii2p"):
         assert table[name].tolist() == [NEEDS_RERUN]
@@ -117,7 +117,7 @@ def test_evaluate_rules_only_scores_every_card_by_its_rules(shared_data, tmp_pat
     table = pd.read_csv(tmp_path / "rules.csv")
     records = ResultsStore(runs / "kitti-all").load()
     for name in ("cofii2p", "icl"):
-        expected = score(records, cards.find(name).rules)
+        expected = score(records, installed.find(name).rules)
         assert table[f"{name} Acc. (%)"].iloc[0] == round(expected["acc_pct"], 2)
         assert table[f"{name} RRE (°)"].iloc[0] == f"{expected['rre_mean']:.2f} ± {expected['rre_std']:.2f}"
 

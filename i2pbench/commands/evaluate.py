@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     result = evaluate(args.run_dir, args.invocation, **thresholds)
     print(leaderboard.to_markdown(result.board))
     if args.by_sequence:
-        from ..scoring.cards import rescored
+        from ..scoring.installed import rescored
         from ..scoring.recall import by_sequence
 
         table = by_sequence(rescored(result.records, result.protocol), result.protocol)

@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     from ..plugins import default_registry
     from ..runs.environment import fix_threads
     from ..runs.invocation import Invocation
-    from ..scoring.cards import for_run
+    from ..scoring.installed import for_run
     from .run_notes import failure_reasons, latency_reused
 
     args.out = board_stem(args.out)  # a device, pipe or folder refused before any work; board.csv read as board

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from .. import leaderboard as lb
-from ..scoring.cards import rescored
+from ..scoring.installed import rescored
 from . import curves, framesets, overlay, robustness, sequences
 from .examples import Example, render_examples
 from .rundir import RunDir, load_run

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pandas as pd
 
 from ..protocol import Protocol
-from ..scoring.cards import rescored
+from ..scoring.installed import rescored
 from ..scoring.recall import by_sequence
 
 EXPLAIN = (

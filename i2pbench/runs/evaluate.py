@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .. import __version__, leaderboard, metric_registry
+from .. import __version__, installed_metrics, leaderboard
 from ..errors import I2PBenchError
 from ..metric_registry import Scored
 from ..metrics import FAILED, pose_errors
@@ -86,7 +86,7 @@ def rescore(records: pd.DataFrame) -> pd.DataFrame:
         pose_errors(_matrix(pred), gt) if (gt := _matrix(truth)) is not None else FAILED
         for pred, truth in zip(records["T_pred"], records["T_gt"], strict=True)
     ]
-    posed = [m for m in metric_registry.active() if m.from_poses and m.frame is not None]
+    posed = [m for m in installed_metrics.active() if m.from_poses and m.frame is not None]
     return records.assign(**{m.name: [m.frame(Scored(None, None, e)) for e in errors] for m in posed})
 
 

@@ -23,11 +23,11 @@ from typing import Any
 import numpy as np
 
 from ..components import STAGE_ORDER
-from ..correspondence import true_match_mask
 from ..corruptions import CorruptionError
 from ..data.base import Dataset
 from ..errors import I2PBenchError
-from ..metric_registry import Scored, record_values
+from ..installed_metrics import record_values
+from ..metric_registry import Scored
 from ..metrics import pose_errors
 from ..pipeline import FrameOutcome
 from ..protocol import Protocol
@@ -194,12 +194,3 @@ def _sequence(dataset: Dataset, frame_id: str) -> str:
         return dataset.sequence_of(frame_id)
     except I2PBenchError:
         return ""
-
-
-def true_matches(frame: Frame | None, outcome: FrameOutcome) -> float:
-    """How many of the matcher's pairs are true under T_gt (within eps_c, or the matcher's own `Matches.radius_px`);
-    NaN when the matcher did not run."""
-    if frame is None or frame.T_gt is None or outcome.matched_uv is None or outcome.matched_xyz is None:
-        return float("nan")
-    radius = outcome.matches.radius_px if outcome.matches is not None else None
-    return float(true_match_mask(frame, outcome.matched_uv, outcome.matched_xyz, radius).sum())

@@ -12,9 +12,10 @@ from collections.abc import Sequence
 from typing import Any
 
 from ..data.base import Dataset
+from ..metric_registry import true_matches
 from ..protocol import Protocol
 from .executors import InProcessExecutor, run_grid, run_work
-from .frames import run_frame, true_matches
+from .frames import run_frame
 from .jobs import Job, frame_key, prepare
 from .store import ResultsStore
 from .tasks import Progress, Work

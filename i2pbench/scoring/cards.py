@@ -17,12 +17,10 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from ..errors import I2PBenchError, PluginError
+from ..errors import PluginError
 from .rules import ScoringRules
 
 if TYPE_CHECKING:  # cards are registered by `i2pbench plugins` too, which must import neither numpy nor pandas
-    import pandas as pd
-
     from ..protocol import Protocol
 
 DEFAULT_NAME, DEFAULT_VERSION = "edgeregnet", 1  # as i2pbench.protocol's (a test checks they agree)
@@ -333,62 +331,6 @@ def check(card: object, plugin: str) -> ProtocolCard:
     return card
 
 
-def installed(registry=None) -> dict[str, ProtocolCard]:
-    """Every registered card by name, the default first (present even when every plugin is blocked)."""
-    from ..plugins import default_registry
-
-    table = (registry or default_registry()).protocols
-    return {EDGEREGNET.name: EDGEREGNET, **{name: card for name, (card, _) in table.items()}}
-
-
-def find(name: str, registry=None) -> ProtocolCard:
-    """The card registered as `name`; an unknown name suggests the closest."""
-    cards = installed(registry)
-    if name in cards:
-        return cards[name]
-    import difflib
-
-    close = difflib.get_close_matches(name, list(cards), n=1, cutoff=0.5)
-    hint = f"; did you mean {close[0]!r}?" if close else ""
-    raise I2PBenchError(f"unknown protocol {name!r}{hint} (known: {', '.join(cards)})")
-
-
-def of(protocol: Protocol, registry=None) -> ProtocolCard:
-    """The card a run's Protocol was made from, refused when the installed card has another version."""
-    card = find(protocol.name, registry)
-    if card.version != protocol.version:
-        raise I2PBenchError(f"the run was made under protocol {protocol.name} v{protocol.version}; the installed "
-                            f"card is v{card.version}: evaluate it with the i2pbench that has that card")  # fmt: skip
-    return card
-
-
-def for_run(name: str, seed: int, dataset: str, registry=None) -> Protocol:
-    """The Protocol `run --protocol NAME` runs under; refused, listing each input, when i2pbench cannot give the
-    card's stages what its paper gave them (a run would otherwise be scored as that paper's while fed otherwise)."""
-    card = find(name, registry)
-    unmet = card.unmet(dataset)
-    if unmet:
-        lines = "\n  ".join(unmet)
-        raise I2PBenchError(
-            f"protocol {card.name} v{card.version} ({card.paper}) needs inputs i2pbench cannot give its stages on "
-            f"{dataset} yet, so nothing was run:\n  {lines}\nto score an existing run by its scoring rules alone: "
-            f"i2pbench evaluate RUN_DIR --rules {card.name} --rules-only"
-        )
-    return card.protocol(seed, dataset)
-
-
 def label(protocol: Protocol) -> str:
     """'name vN', the protocol column of a leaderboard row."""
     return f"{protocol.name} v{protocol.version}"
-
-
-def rescored(records: pd.DataFrame, protocol: Protocol) -> pd.DataFrame:
-    """The records as the protocol's card scores them: under the default card unchanged; under another, rte_m and
-    rre_deg by its rules and the frames it leaves out (skipped failures, DeepI2P's all-inlier frames) dropped, so
-    the leaderboard's metrics (thresholds from the same card) give its Acc., means and stds."""
-    if (protocol.name, protocol.version) == (DEFAULT_NAME, DEFAULT_VERSION) or records.empty:
-        return records
-    from .score import frame_errors
-
-    errors = frame_errors(records, of(protocol).rules)
-    return records.assign(rte_m=errors["rte"], rre_deg=errors["rre"])[errors["scored"]]

@@ -15,7 +15,7 @@ import pandas as pd
 
 from ..errors import I2PBenchError
 from ..protocol import Protocol
-from . import cards
+from . import cards, installed
 from .score import score
 
 NEEDS_RERUN = "needs a rerun"
@@ -37,8 +37,8 @@ def columns(name: str) -> list[str]:
 def chosen(names: str) -> list[cards.ProtocolCard]:
     """The cards `--rules` names: comma-separated names, or `all` (every installed card, the default first)."""
     if names == "all":
-        return list(cards.installed().values())
-    return [cards.find(name.strip()) for name in names.split(",") if name.strip()]
+        return list(installed.installed().values())
+    return [installed.find(name.strip()) for name in names.split(",") if name.strip()]
 
 
 def rules_table(records: pd.DataFrame, protocol: Protocol, wanted: list[cards.ProtocolCard],
@@ -47,7 +47,7 @@ def rules_table(records: pd.DataFrame, protocol: Protocol, wanted: list[cards.Pr
     if records.empty:
         raise I2PBenchError("no per-frame records to score")
     dataset = str(records["dataset"].iloc[0])
-    given = cards.of(protocol).inputs(dataset)
+    given = installed.of(protocol).inputs(dataset)
     result = RulesTable(pd.DataFrame(), [], [], {})
     for card in wanted:
         if given is not None and card.inputs(dataset) == given:
