@@ -66,8 +66,9 @@ def register_presets(register: Register) -> None:
 
     `combinations` is a list of dicts mapping stage kinds (e.g. "extractor2d") to component names; kinds left out take
     the default pipeline's choice. An entry may instead be another preset's name (a str): its rows, in place, so a
-    comparison across several plugins' methods names their presets rather than copying them. The preset named
-    "default" is what `i2pbench run` uses with no stage options.
+    comparison across several plugins' methods names their presets rather than copying them; or a
+    `Row(size, swaps, method=NAME, confs=..., variant=...)`, a row of a registered method built from its
+    declaration. The preset named "default" is what `i2pbench run` uses with no stage options.
     """
 
 

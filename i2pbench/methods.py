@@ -7,7 +7,8 @@ presets and shipped weights, so a second learned method needs no glue of its own
 its rows, `--weights auto` and the checkpoint check all read what is declared here.
 
 A preset row is the same plain mapping `register_presets` takes: stage names, plus "confs" (the configs the row
-pins) and "variant" (the size's label). Nothing here imports a component, so `i2pbench plugins` stays light.
+pins) and "variant" (the size's label); `register_presets` takes a `Row` naming a registered method too. Nothing here
+imports a component, so `i2pbench plugins` stays light.
 """
 
 from __future__ import annotations
@@ -49,10 +50,17 @@ class Size:
 
 @dataclass(frozen=True)
 class Row:
-    """A preset row: the method at one of its sizes, with some stages swapped (`{"exchanger": "none"}`)."""
+    """A preset row: a method at one of its sizes, with some stages swapped (`{"exchanger": "none"}`), `confs` for
+    the row's stages (replacing the size's at those kinds: a swapped-in component's own) and its own `variant` label
+    (None: the size's). In a method's presets the method is the declaring one; in `register_presets` a row names
+    the registered `method` it is built on, resolved when the preset is expanded, so a plugin builds rows on
+    another plugin's method without importing it."""
 
     size: str
     swaps: Mapping[str, str] = field(default_factory=dict)
+    method: str = ""
+    confs: Confs = field(default_factory=dict)
+    variant: str | None = None
 
 
 @dataclass(frozen=True)
@@ -106,9 +114,21 @@ class Method:
         confs = copy.deepcopy({**own, **chosen.pins})
         return {**names, "confs": confs, "variant": chosen.label}
 
+    def resolve(self, row: Row) -> dict[str, Any]:
+        """The combination of a `Row` of this method."""
+        if row.method not in ("", self.name):
+            raise PluginError(f"method {self.name!r}: a row of method {row.method!r} is not one of its rows")
+        if set(row.confs) - set(STAGE_ORDER):
+            raise PluginError(f"method {self.name!r}: a row configures unknown stage kinds {sorted(row.confs)}")
+        out = self.row(row.size, **row.swaps)
+        out["confs"].update(copy.deepcopy({kind: dict(conf) for kind, conf in row.confs.items()}))
+        if row.variant is not None:
+            out["variant"] = row.variant
+        return out
+
     def combinations(self, preset: MethodPreset) -> list[dict[str, Any]]:
         """The preset's rows as the combinations `register_presets` would take."""
-        return [self.row(r.size, **r.swaps) if isinstance(r, Row) else copy.deepcopy(dict(r)) for r in preset.rows]
+        return [self.resolve(r) if isinstance(r, Row) else copy.deepcopy(dict(r)) for r in preset.rows]
 
     def check(self) -> None:
         """Refuse a declaration that cannot work, before anything runs: unknown kinds, duplicate or unknown sizes."""

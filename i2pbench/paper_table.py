@@ -48,7 +48,8 @@ def preset_rows(registry: Registry, preset: str) -> list[TableRow]:
             name = f"{included.method} ({entry})" if included.method and included.method != entry else entry
             description = included.description
         else:
-            combinations, description = expand([entry], {}, registry=registry), ""
+            row = registry.row(entry)  # None: a row of a method no loaded plugin registers
+            combinations, description = expand([row] if row else [], {}, registry=registry), ""
             name = ""
         for combination in combinations:
             label = combination.display

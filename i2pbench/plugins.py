@@ -25,6 +25,7 @@ from __future__ import annotations
 import importlib
 import os
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any
@@ -35,7 +36,7 @@ from . import hookspecs
 from .components import STAGE_BASES, STAGES, Component
 from .entry_points import EntryPoint, installed
 from .errors import PluginError
-from .methods import Method
+from .methods import Method, Row
 
 if TYPE_CHECKING:  # imported to check a class: listing what was registered by path needs neither
     from .corruptions import Corruption
@@ -60,11 +61,12 @@ class PluginInfo:
 
 @dataclass(frozen=True)
 class Preset:
-    """A named list of rows: combinations, or (a str) the name of another preset whose rows come in its place, so a
-    table spanning several plugins' methods (a paper's comparison) is declared without copying their rows."""
+    """A named list of rows: combinations, (a str) the name of another preset whose rows come in its place, so a
+    table spanning several plugins' methods (a paper's comparison) is declared without copying their rows, or (a
+    `methods.Row`) a row of a registered method, built from its declaration when the preset is expanded."""
 
     name: str
-    combinations: tuple[dict[str, str] | str, ...]
+    combinations: tuple[dict[str, Any] | str | Row, ...]
     description: str
     plugin: str
     method: str = ""  # the method that declared it ("": registered by register_presets)
@@ -132,14 +134,17 @@ class Registry:
     def preset(self, name: str) -> Preset:
         return self.presets[_lookup(self.presets, name, "preset")]
 
-    def preset_rows(self, name: str, _within: tuple[str, ...] = ()) -> list[dict[str, str]]:
-        """The preset's combinations, included presets expanded in place (resolved now, so plugins may register
-        in any order); an included preset no loaded plugin registers, or a cycle, is an error naming both."""
+    def preset_rows(self, name: str, _within: tuple[str, ...] = ()) -> list[dict[str, Any]]:
+        """The preset's combinations, included presets and method rows expanded in place (resolved now, so plugins
+        may register in any order); an included preset no loaded plugin registers, or a cycle, is an error naming
+        both. A row of a method no loaded plugin registers is left out, and a preset left with no row is an error
+        naming the methods it needs."""
         preset = self.preset(name)
-        rows: list[dict[str, str]] = []
+        rows: list[dict[str, Any]] = []
         for entry in preset.combinations:
             if not isinstance(entry, str):
-                rows.append(dict(entry))
+                row = self.row(entry)
+                rows += [row] if row is not None else []
                 continue
             if entry in (*_within, preset.name):
                 raise PluginError(f"preset {preset.name!r} (plugin {preset.plugin!r}) includes itself via {entry!r}")
@@ -149,7 +154,19 @@ class Registry:
                     "plugin registers: install the plugin that declares it"
                 )
             rows.extend(self.preset_rows(entry, (*_within, preset.name)))
+        if not rows and preset.combinations:
+            needed = sorted({e.method for e in preset.combinations if isinstance(e, Row)})
+            raise PluginError(f"preset {preset.name!r} (plugin {preset.plugin!r}) is built on method(s) "
+                              f"{', '.join(needed)}, which no loaded plugin registers: install the plugin that "
+                              "declares it")  # fmt: skip
         return rows
+
+    def row(self, entry: Mapping[str, Any] | Row) -> dict[str, Any] | None:
+        """A preset entry's combination: a plain one copied, a method's `Row` built from the method (None when no
+        loaded plugin registers that method)."""
+        if not isinstance(entry, Row):
+            return dict(entry)
+        return self.method(entry.method).resolve(entry) if entry.method in self.methods else None
 
     def method(self, name: str) -> Method:
         return self.methods[_lookup(self.methods, name, "method")][0]
@@ -332,7 +349,9 @@ def _add_preset(
 ) -> None:
     if name in registry.presets:
         raise PluginError(f"preset {name!r} is registered by both {registry.presets[name].plugin!r} and {plugin!r}")
-    rows = tuple(c if isinstance(c, str) else dict(c) for c in combinations)
+    rows = tuple(c if isinstance(c, str | Row) else dict(c) for c in combinations)
+    if any(isinstance(r, Row) and not r.method for r in rows):
+        raise PluginError(f"plugin {plugin!r}: preset {name!r} has a Row naming no method (Row(size, method=...))")
     registry.presets[name] = Preset(name, rows, description, plugin, method)
 
 

@@ -233,3 +233,40 @@ def test_edgeregnet_is_one_method_from_its_entry_point(monkeypatch):
     assert official["encoder2d"] == "superpoint-official" and official["matcher"] == "match-assignment-official"
     assert official["variant"] == "official" and official["confs"]["extractor2d"] == {"max_keypoints": 3000}
     assert [path for path, _ in registry.weights] == [str(w) for w in method.weights] and len(method.weights) == 2
+
+
+class AblationPlugin:
+    """A third party's presets built on the toy method by name, importing nothing of it."""
+
+    __name__ = "ablations"
+
+    @hookimpl
+    def register_presets(self, register):
+        wider = Row("tiny", method="toy", confs={"encoder2d": {"dim": 3}}, variant="tiny, dim 3")
+        truth = Row("tiny", {"matcher": "truth"}, method="toy")
+        register("toy-ablation", [Row("reference", method="toy"), wider, Row("tiny", method="absent"), truth])
+        register("absent-only", [Row("tiny", method="absent"), Row("paper", method="gone")])
+
+
+def test_a_preset_row_names_a_registered_method_and_is_built_from_its_declaration():
+    registry = build_registry((toy_plugin, AblationPlugin(), toy_method.ToyMethodPlugin()), strict=True)  # any order
+    method = registry.method("toy")
+    reference, wider, truth = registry.preset_rows("toy-ablation")  # the row of a method nobody registers: left out
+    assert reference == method.row("reference") and truth == method.row("tiny", matcher="truth")
+    assert wider == {**toy_method.STAGES, "confs": {"encoder2d": {"dim": 3}}, "variant": "tiny, dim 3"}
+    assert [c.display for c in expand([reference, wider, truth], {}, None, registry)] == [
+        REFERENCE_ROW, f"{REFERENCE_ROW} (tiny, dim 3)", "grid > first > truth > truth"]  # fmt: skip
+    with pytest.raises(PluginError, match=r"preset 'absent-only' \(plugin 'ablations'\) is built on method\(s\) "
+                                          r"absent, gone, which no loaded plugin registers"):  # fmt: skip
+        registry.preset_rows("absent-only")
+
+
+def test_a_row_in_register_presets_must_name_its_method():
+    plugin = types.SimpleNamespace(register_presets=hookimpl(lambda register: register("p", [Row("tiny")])))
+    with pytest.raises(PluginError, match=r"preset 'p' has a Row naming no method"):
+        build_registry((plugin,), strict=True)
+
+
+def test_a_method_row_configures_only_stage_kinds():
+    with pytest.raises(PluginError, match=r"a row configures unknown stage kinds \['encoder'\]"):
+        toy_method.method().resolve(Row("tiny", confs={"encoder": {}}))

@@ -16,15 +16,9 @@ ROOT = Path(__file__).resolve().parents[1]
 PLUGINS = ROOT / "plugins"
 PUBLIC = ("i2pbench.api", "i2pbench.layers")
 TESTS_ONLY = ("i2pbench.testing",)
-# the one import of another plugin left, with why: pretrained's ablation presets are the edgeregnet and corri2p CPU
-# rows with the image encoder swapped for ALIKED at a pinned config, and their names guarded (no rows where those
-# plugins are absent). A preset cannot yet name another method's size with a swapped stage *and* a config for it
-# (`Row` swaps components only), so the rows are built from those plugins' configs.
-ALLOWED = {
-    ("pretrained/i2pbench_pretrained/plugin.py", "i2pbench_edgeregnet.configs"),
-    ("pretrained/i2pbench_pretrained/plugin.py", "i2pbench_edgeregnet.method"),
-    ("pretrained/i2pbench_pretrained/plugin.py", "i2pbench_corri2p.configs"),
-}
+# (file, module) imports the check lets through, each with why; none: a preset built on another plugin's method
+# names it (`Row(size, swaps, method=..., confs=...)`), and the registry builds the row from its declaration
+ALLOWED: set[tuple[str, str]] = set()
 
 
 def plugin_packages() -> dict[str, str]:
