@@ -69,30 +69,10 @@ def add_scale_options(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import leaderboard, progress
-    from ..devices import resolve_device_name
-    from ..errors import DataError, I2PBenchError
-    from ..out_stem import board_stem
-    from ..plugins import default_registry
-    from ..runs.environment import fix_threads
+    from ..errors import I2PBenchError
     from ..runs.invocation import Invocation
-    from ..scoring.installed import for_run
-    from .run_notes import failure_reasons, latency_reused
 
-    args.out = board_stem(args.out)  # a device, pipe or folder refused before any work; board.csv read as board
-    if args.isolate:  # Pipeline.build reads it; worker processes receive pipelines built here
-        os.environ["I2PBENCH_ISOLATE"] = args.isolate
-    threads = fix_threads(args.threads)
-    args.device = resolve_device_name(args.device)  # resolved once: "auto" would read differently in the record
-    registry = default_registry()
-    combinations = chosen_combinations(registry, args)
-    check_confs(registry, combinations)
-    dataset = open_dataset(registry, args)
-    frame_ids = _frame_ids(dataset, args)
-    if not frame_ids:
-        raise DataError(f"dataset {dataset.name!r} split {dataset.split!r} has no frames to run")
-    base = for_run(args.protocol, args.seed, dataset.name, registry)
-    protocols = _protocols(registry, base, args, dataset, frame_ids)
+    registry, combinations, dataset, frame_ids, protocols, threads = _prepare(args)
     name = f"{dataset.name}-{dataset.split}{getattr(dataset, 'board_suffix', '')}"  # a fold's board is its own
     store = _open_store(Path(args.runs_dir) / name)
     invocation = Invocation(store.root, _meta(args, threads, protocols, dataset, frame_ids, combinations))
@@ -108,18 +88,53 @@ def run(args: argparse.Namespace) -> int:
         from .run_notes import stopped
 
         return stopped(exc, store, invocation, protocols[0])
-    board = leaderboard.build(records, protocols[0])
-    counts = _summary(records, board, invocation.id, time.perf_counter() - start)
+    stem = Path(args.out or Path(args.runs_dir) / "leaderboards" / board_name(name, args))
+    _publish(args, registry, records, protocols[0], invocation, threads, time.perf_counter() - start, store.root, stem)
+    return 0
+
+
+def _prepare(args: argparse.Namespace):
+    """Everything checked before the run's store is made: options, combinations and their configs, the dataset and
+    its frames, the protocols; returns (registry, combinations, dataset, frame ids, protocols, threads)."""
+    from ..devices import resolve_device_name
+    from ..errors import DataError
+    from ..out_stem import board_stem
+    from ..plugins import default_registry
+    from ..runs.environment import fix_threads
+    from ..scoring.installed import for_run
+
+    args.out = board_stem(args.out)  # a device, pipe or folder refused before any work; board.csv read as board
+    if args.isolate:  # Pipeline.build reads it; worker processes receive pipelines built here
+        os.environ["I2PBENCH_ISOLATE"] = args.isolate
+    threads = fix_threads(args.threads)
+    args.device = resolve_device_name(args.device)  # resolved once: "auto" would read differently in the record
+    registry = default_registry()
+    combinations = chosen_combinations(registry, args)
+    check_confs(registry, combinations)
+    dataset = open_dataset(registry, args)
+    frame_ids = _frame_ids(dataset, args)
+    if not frame_ids:
+        raise DataError(f"dataset {dataset.name!r} split {dataset.split!r} has no frames to run")
+    base = for_run(args.protocol, args.seed, dataset.name, registry)
+    protocols = _protocols(registry, base, args, dataset, frame_ids)
+    return registry, combinations, dataset, frame_ids, protocols, threads
+
+
+def _publish(args, registry, records, protocol, invocation, threads: int, wall_s: float, store_root: Path, stem: Path):
+    """The finished run's board: recorded with the invocation, printed with its notes, then written to `stem`."""
+    from .. import leaderboard, progress
+    from .run_notes import failure_reasons, latency_reused
+
+    board = leaderboard.build(records, protocol)
+    counts = _summary(records, board, invocation.id, wall_s)
     invocation.finish(**counts)
-    progress.note(f"{counts['reused']} of {len(records)} frames reused from the cache in {store.root}")
+    progress.note(f"{counts['reused']} of {len(records)} frames reused from the cache in {store_root}")
     print(leaderboard.to_markdown(board))  # first: a leaderboard that cannot be written is still seen
     for line in [*failure_reasons(records), *latency_reused(records, invocation.id, threads, args)]:
         progress.note(line)
     summary = _robustness(registry, board)
-    stem = Path(args.out or Path(args.runs_dir) / "leaderboards" / board_name(name, args))
-    paths = _write_board(board, records, stem, store.root, summary)
-    progress.note(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store.root}")
-    return 0
+    paths = _write_board(board, records, stem, store_root, summary)
+    progress.note(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store_root}")
 
 
 def board_name(store_name: str, args: argparse.Namespace) -> str:
