@@ -33,6 +33,7 @@ from .batching import BatchForward, to_device
 from .components import TrainableMatcher
 from .data.base import Dataset
 from .errors import I2PBenchError, PluginError, WeightsError
+from .learned import LearnedComponent
 from .metrics import summarize
 from .pipeline import Pipeline
 from .protocol import Protocol
@@ -75,12 +76,12 @@ def make_deterministic() -> None:
     torch.backends.cudnn.deterministic = True
 
 
-def compile_stages(stages: Mapping[str, Any], backend: str) -> list[str]:
+def compile_stages(stages: Mapping[str, LearnedComponent], backend: str) -> list[str]:
     """`torch.compile` each learned stage's fixed-shape blocks in place (state dicts keep their keys); returns what
     was compiled, as `kind.Module` names."""
     compiled = []
     for kind, stage in stages.items():
-        for block in getattr(stage, "compile_targets", list)():
+        for block in stage.compile_targets():
             block.compile(backend=backend)
             compiled.append(f"{kind}.{type(block).__name__}")
     return compiled

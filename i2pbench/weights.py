@@ -263,8 +263,9 @@ def mismatch(checkpoint: Checkpoint, pipeline: Pipeline, *, strict_extractors: b
     kinds = set(want) | set(have)
     if not strict_extractors:
         kinds -= set(EXTRACTOR_KINDS)
+    learned = pipeline.learned_modules()
     for kind in sorted(kinds):
-        runtime = getattr(pipeline.stages.get(kind), "runtime_keys", frozenset())
+        runtime = learned[kind].runtime_keys if kind in learned else frozenset()  # a LearnedComponent declares them
         w, h = _without(want.get(kind), runtime), _without(have.get(kind), runtime)
         if w != h:
             return (
