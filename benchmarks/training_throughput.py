@@ -21,12 +21,12 @@ from tempfile import TemporaryDirectory
 
 import torch
 
-from i2pbench.batching import BatchForward, to_device
 from i2pbench.grid import base_combinations, expand, parse_conf_overrides
 from i2pbench.pipeline import Pipeline
 from i2pbench.plugins import default_registry
-from i2pbench.training import TrainConfig, Trainer
-from i2pbench.training_data import TrainingSamples, collate_samples
+from i2pbench.training.batching import BatchForward, to_device
+from i2pbench.training.samples import TrainingSamples, collate_samples
+from i2pbench.training.trainer import TrainConfig, Trainer
 
 PRESETS = {"cpu": "default", "paper": "edgeregnet-full"}
 SYNCS = ("aten::item", "aten::_local_scalar_dense")

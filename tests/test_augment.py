@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 import toy_plugin
 
-from i2pbench.augment import Photometric, augmentations
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import build_registry
-from i2pbench.training_data import TrainingSamples
+from i2pbench.training.augment import Photometric, augmentations
+from i2pbench.training.samples import TrainingSamples
 
 
 def test_a_pure_brightness_shift_adds_grey_levels_and_clips():

@@ -7,8 +7,8 @@ import torch
 from torch import nn
 
 from i2pbench.api import BatchedStage, Encoder2D, Exchanger, Features, Keypoints2D, Keypoints3D, Matcher, StageError
-from i2pbench.batching import BatchForward, collate, length_mask, prepare_stage
 from i2pbench.testing import assert_conforms, synthetic_frame
+from i2pbench.training.batching import BatchForward, collate, length_mask, prepare_stage
 
 
 class Scale(BatchedStage, Encoder2D):

@@ -22,13 +22,13 @@ from test_edgeregnet_training import one_thread, tiny_frame  # noqa: F401 (an au
 from test_training_batches import assert_mean_of_frames
 
 from i2pbench.api import Features, Frame, Keypoints2D, Keypoints3D
-from i2pbench.batching import BatchForward, prepare_stage
 from i2pbench.grid import base_combinations, expand
 from i2pbench.layers.frame_norm import FrameNorm
 from i2pbench.plugins import build_registry
 from i2pbench.runs.runner import prepare
 from i2pbench.testing import check_component, registered_components
-from i2pbench.training_data import collate_samples
+from i2pbench.training.batching import BatchForward, prepare_stage
+from i2pbench.training.samples import collate_samples
 
 D, G = 48, 16
 WIDTHS = {"descriptor_dim": D, "global_dim": G}

@@ -44,7 +44,6 @@ from i2pbench.api import (
     PoseSolver,
     SensorFrame,
 )
-from i2pbench.batching import BatchForward, prepare_stage
 from i2pbench.calling import StageInputs, call_stage
 from i2pbench.contracts import ContractError, check_matches
 from i2pbench.correspondence import true_match_mask
@@ -59,7 +58,8 @@ from i2pbench.runs.runner import prepare
 from i2pbench.runs.upstream import UPSTREAM_KINDS, StoredUpstream
 from i2pbench.testing import check_component, check_declaration, registered_components
 from i2pbench.trace import Upstream
-from i2pbench.training_data import collate_samples
+from i2pbench.training.batching import BatchForward, prepare_stage
+from i2pbench.training.samples import collate_samples
 
 D, G, CELL = 48, 16, 16
 WIDTHS = {"descriptor_dim": D, "global_dim": G}

@@ -13,7 +13,7 @@ from i2pbench import layers
 from i2pbench.plugins import default_registry
 from i2pbench.runs.jobs import _described
 from i2pbench.runs.store import cache_key
-from i2pbench.training_data import signature
+from i2pbench.training.samples import signature
 
 LAYERS = Path(i2pbench.layers.__file__).parent
 

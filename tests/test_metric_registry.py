@@ -18,7 +18,7 @@ from i2pbench.protocol import Protocol
 from i2pbench.regression_gate import compare, parse_tolerances
 from i2pbench.runs.jobs import frame_key, prepare, upstream_key
 from i2pbench.runs.store import ResultsStore
-from i2pbench.training import TrainConfig, Trainer
+from i2pbench.training.trainer import TrainConfig, Trainer
 
 COLUMN = "keypoints per match ↓"
 

@@ -8,14 +8,14 @@ import torch
 import toy_plugin
 
 from i2pbench.api import Encoder2D, Extractor2D, Features, Keypoints2D, Matcher, Matches
-from i2pbench.batching import BatchForward
 from i2pbench.calling import StageInputs, call_stage
 from i2pbench.contracts import ContractError
 from i2pbench.isolation import isolated
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.protocol import Protocol
 from i2pbench.testing import check_component, synthetic_frame
-from i2pbench.training_data import TrainingSamples, collate_samples
+from i2pbench.training.batching import BatchForward
+from i2pbench.training.samples import TrainingSamples, collate_samples
 
 TOY = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
 

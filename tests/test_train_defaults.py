@@ -4,7 +4,7 @@ import dataclasses
 
 from i2pbench.cli import build_parser
 from i2pbench.commands.train import CONFIG_OPTIONS, train_config
-from i2pbench.train_config import TrainConfig
+from i2pbench.training.config import TrainConfig
 
 
 def parse(*argv: str):

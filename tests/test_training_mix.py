@@ -10,11 +10,11 @@ import toy_plugin
 
 from i2pbench.api import Extractor3D, Keypoints3D, SensorFrame, hookimpl
 from i2pbench.errors import I2PBenchError
-from i2pbench.lidar_dropout import LidarDropout, thin
 from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
-from i2pbench.training_data import TrainingSamples
-from i2pbench.training_mix import MixedSource, SourceSpec, check_mix, choose_source, open_source, parse_source
+from i2pbench.training.lidar_dropout import LidarDropout, thin
+from i2pbench.training.mix import MixedSource, SourceSpec, check_mix, choose_source, open_source, parse_source
+from i2pbench.training.samples import TrainingSamples
 from i2pbench.weights import data_label, load_checkpoint
 
 
@@ -249,7 +249,7 @@ def test_a_mixed_checkpoint_records_its_sources_and_a_run_without_the_mix_is_a_n
     import torch
 
     from i2pbench.pipeline import Combination, Pipeline
-    from i2pbench.training import TrainConfig, Trainer, training_meta
+    from i2pbench.training.trainer import TrainConfig, Trainer, training_meta
 
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
     registry = build_registry((toy_plugin,))

@@ -12,7 +12,7 @@ from test_train_cli import train
 
 from i2pbench.installed_metrics import aggregates
 from i2pbench.protocol import Protocol
-from i2pbench.training import compile_stages, spread
+from i2pbench.training.trainer import compile_stages, spread
 from i2pbench.weights import load_checkpoint
 
 

@@ -23,7 +23,7 @@ from .options import (
 
 if TYPE_CHECKING:  # the CLI starts without importing the training code
     from ..data.base import Dataset
-    from ..training_mix import MixedSource, SourceSpec
+    from ..training.mix import MixedSource, SourceSpec
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -74,7 +74,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def augment_list(text: str) -> str:
     """An argparse type: a comma list of augmentation names, checked and normalised ("a, b" -> "a,b")."""
-    from ..augment import augmentation_names
+    from ..training.augment import augmentation_names
 
     try:
         return ",".join(augmentation_names(text))
@@ -111,7 +111,7 @@ CONFIG_OPTIONS: dict[str, tuple[Any, str, str | None]] = {
 
 def add_config_options(p: argparse.ArgumentParser) -> None:
     """One option per CONFIG_OPTIONS entry, defaulting to TrainConfig's value."""
-    from ..train_config import TrainConfig
+    from ..training.config import TrainConfig
 
     defaults = TrainConfig()
     for name, (kind, help, metavar) in CONFIG_OPTIONS.items():
@@ -126,7 +126,7 @@ def add_config_options(p: argparse.ArgumentParser) -> None:
 
 def train_config(args: argparse.Namespace, device: str):
     """The TrainConfig the options give: each CONFIG_OPTIONS field as parsed, and the ones the command derives."""
-    from ..train_config import TrainConfig
+    from ..training.config import TrainConfig
 
     cache_dir = None if args.cache_dir == "none" else args.cache_dir
     config = {name: getattr(args, name) for name in CONFIG_OPTIONS}
@@ -136,7 +136,7 @@ def train_config(args: argparse.Namespace, device: str):
 def _source_specs(args: argparse.Namespace) -> tuple[list[SourceSpec], SourceSpec | None]:
     """--mix and --val-dataset parsed and checked, before any work."""
     from ..errors import I2PBenchError
-    from ..training_mix import SourceSpec, check_mix, parse_source
+    from ..training.mix import SourceSpec, check_mix, parse_source
 
     mix = [parse_source(text, "--mix", with_share=True) for text in args.mix]
     check_mix(SourceSpec(args.dataset, args.split, args.data_root), mix)
@@ -154,7 +154,7 @@ def _datasets(
     """(train set, val set or None, mixed-in sources); each --mix and --val-dataset split is listed now, so a
     wrong one stops the run before the pipeline is built."""
     from ..errors import DataError
-    from ..training_mix import MixedSource, open_source
+    from ..training.mix import MixedSource, open_source
 
     data_conf = parse_data_conf(args.data_conf)
     if args.data_root:
@@ -240,7 +240,7 @@ def run(args: argparse.Namespace) -> int:
     from ..pipeline import Pipeline
     from ..plugins import default_registry
     from ..runs.environment import fix_threads
-    from ..training import Trainer, steps_for_epochs, training_meta
+    from ..training.trainer import Trainer, steps_for_epochs, training_meta
 
     check_out(Path(args.out), args.force)
     mix_specs, val_spec = _source_specs(args)
@@ -271,7 +271,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _announce(trainer, train_set, mix, resumed: str) -> None:
     """What trains, on what data, at which effective batch, resumed or compiled (by rank 0 only)."""
-    from ..training import data_identity
+    from ..training.trainer import data_identity
     from ..weights import data_label
 
     if not trainer.dist.main:

@@ -2,7 +2,7 @@
 
 A step takes `batch_size` frames per rank, `accumulate` times (effective batch = ranks x accumulate x batch_size);
 each frame has its own protocol transform, drawn from its global sample index, so a resumed run, another worker count
-or another number of ranks sees the same sequence (`training_data.py`). Data work runs in DataLoader workers; the
+or another number of ranks sees the same sequence (`samples.py`). Data work runs in DataLoader workers; the
 loop only moves padded batches to the device and runs the learned stages (`batching.py`). Under `torchrun` each rank
 takes its share of every step and DistributedDataParallel averages the gradients; rank 0 validates and checkpoints.
 
@@ -28,20 +28,20 @@ import numpy as np
 import pandas as pd
 import torch
 
-from . import installed_metrics
+from .. import installed_metrics
+from ..components import TrainableMatcher
+from ..data.base import Dataset
+from ..errors import I2PBenchError, PluginError, WeightsError
+from ..learned import LearnedComponent
+from ..metrics import summarize
+from ..pipeline import Pipeline
+from ..protocol import Protocol
+from ..types import Frame
+from ..weights import file_digest, load_checkpoint, mismatch, save_checkpoint
 from .batching import BatchForward, to_device
-from .components import TrainableMatcher
-from .data.base import Dataset
-from .errors import I2PBenchError, PluginError, WeightsError
-from .learned import LearnedComponent
-from .metrics import summarize
-from .pipeline import Pipeline
-from .protocol import Protocol
-from .train_config import TrainConfig
-from .training_data import TrainingSamples, collate_samples
-from .training_mix import MixedSource
-from .types import Frame
-from .weights import file_digest, load_checkpoint, mismatch, save_checkpoint
+from .config import TrainConfig
+from .mix import MixedSource
+from .samples import TrainingSamples, collate_samples
 
 Report = Callable[[int, dict[str, Any]], None]
 
@@ -152,7 +152,7 @@ class Trainer:
         config: TrainConfig,
         mix: Sequence[MixedSource] = (),
     ) -> None:
-        """`mix`: datasets mixed into `train_set`, each with its share of the samples (training_mix.py)."""
+        """`mix`: datasets mixed into `train_set`, each with its share of the samples (mix.py)."""
         self.pipeline, self.train_set, self.val_set, self.out, self.config = pipeline, train_set, val_set, out, config
         self.mix = tuple(mix)
         for name, value in (("lr", config.lr), ("grad_clip", config.grad_clip)):
@@ -299,8 +299,8 @@ class Trainer:
         Keys are metric names (acc_pct, skill_acc_pct, ...)."""
         if self.val_set is None:
             return {}
-        from .runs.frames import run_frame
-        from .runs.jobs import Job
+        from ..runs.frames import run_frame
+        from ..runs.jobs import Job
 
         self.pipeline.eval()
         protocol, job = Protocol(), Job(self.pipeline.combination, self.pipeline, str(self.device))

@@ -1,6 +1,6 @@
 """Training samples as a torch Dataset keyed by a global sample index, and a per-frame cache on disk.
 
-Sample i's source (with `--mix`, training_mix.py), frame and protocol transform are a pure function of (seed, i), so
+Sample i's source (with `--mix`, mix.py), frame and protocol transform are a pure function of (seed, i), so
 a resumed run, another worker count or another number of DDP ranks sees the same sequence. Everything heavy for one
 sample (loading, extraction, each learned stage's `prepare`) runs inside `__getitem__`, i.e. in DataLoader workers,
 never in the training loop.
@@ -24,15 +24,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from . import layers
+from .. import layers
+from ..components import Component
+from ..data.base import Dataset
+from ..pipeline import extract
+from ..protocol import Protocol
+from ..types import Frame, Keypoints2D, Keypoints3D
 from .augment import augmentations
 from .batching import LEARNED_KINDS, collate, length_mask, prepare_stage
-from .components import Component
-from .data.base import Dataset
-from .pipeline import extract
-from .protocol import Protocol
-from .training_mix import MixedSource, choose_source
-from .types import Frame, Keypoints2D, Keypoints3D
+from .mix import MixedSource, choose_source
 
 EXTRACTOR_KINDS = ("extractor2d", "extractor3d")
 
@@ -116,7 +116,7 @@ class TrainingSamples(torch.utils.data.Dataset):
         """`stage_cache` False recomputes the stages' transform-free inputs (grouping) every time: the old loop.
         `epochs`: samples go through the split in passes, each a permutation seeded by (seed, epoch), instead of
         drawing a frame at random for every sample. `augment`: see augment.py, drawn per sample index. `mix`: other
-        datasets, each supplying its share of the samples (training_mix.py); not with `epochs`, whose passes are
+        datasets, each supplying its share of the samples (mix.py); not with `epochs`, whose passes are
         over one split."""
         if epochs and mix:
             raise ValueError("epochs pass over one split; with mixed-in datasets give a number of steps")

@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from .data.base import Dataset
-from .errors import I2PBenchError
+from ..data.base import Dataset
+from ..errors import I2PBenchError
 
 MIX_SALT = 1_000_211  # the source draw's own stream: the frame draw (seed, index) stays as it was without a mix
 

@@ -14,10 +14,10 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from .calling import StageInputs, call_stage
-from .components import Component
-from .learned import BatchedStage
-from .types import Features, Frame, Keypoints2D, Keypoints3D
+from ..calling import StageInputs, call_stage
+from ..components import Component
+from ..learned import BatchedStage
+from ..types import Features, Frame, Keypoints2D, Keypoints3D
 
 LEARNED_KINDS = ("encoder2d", "encoder3d", "exchanger", "matcher")
 PER_FRAME = "_per_frame"  # the prepared entry of a stage without `prepare`: (frame, kp2d, kp3d), collated as a list

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .types import Frame, Keypoints3D
+from ..types import Frame, Keypoints3D
 
 
 @dataclass(frozen=True)
