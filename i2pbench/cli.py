@@ -85,7 +85,7 @@ def invoked(argv: Sequence[str]) -> tuple[str, ...]:
 
 def check_stage_timeout() -> None:
     """Read I2PBENCH_STAGE_TIMEOUT_S once, up front: a bad value found deep in a pipeline would be a traceback."""
-    from .timeout import ENV_VAR, timeout_from_env
+    from .execution.timeout import ENV_VAR, timeout_from_env
 
     try:
         limit = timeout_from_env()
@@ -111,7 +111,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _run(argv: Sequence[str]) -> int:
     args = build_parser(full=invoked(argv)).parse_args(argv)
     if getattr(args, "quiet", False):  # reaches progress bars deep in library code and worker processes
-        from .progress import set_quiet
+        from .execution.progress import set_quiet
 
         set_quiet(True)
     try:

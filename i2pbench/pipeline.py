@@ -1,13 +1,13 @@
 """A chosen combination of components, checked before any frame runs, and run one frame at a time.
 
 `Pipeline.run` is the only code that calls stages, each through `i2pbench.calling.call_stage` (declared view, timed
-call, contract check), and it returns the frame's trace (`i2pbench.trace.FrameOutcome`): each stage's checked output
-and seconds, in order, and the failure if any; runs, viz and training read that trace. An exception, a contract
-violation or a stage running past its time limit (see `i2pbench.timeout`) becomes a failed outcome that names the
+call, contract check), and it returns the frame's trace (`i2pbench.trace.FrameOutcome`): each stage's checked output and
+seconds, in order, and the failure if any; runs, viz and training read that trace. An exception, a contract violation or
+a stage running past its time limit (see `i2pbench.execution.timeout`) becomes a failed outcome that names the
 component, so one bad frame or plugin never sinks a run. That includes plugin code calling sys.exit or raising
-KeyboardInterrupt; only the user's own Ctrl-C stops a run (`i2pbench.interrupts` tells the two apart). Untrusted
-plugins can run in a child process instead: `i2pbench.isolation` wraps a pipeline so that its frames run there, where
-a time limit can kill a stage even when it holds the GIL.
+KeyboardInterrupt; only the user's own Ctrl-C stops a run (`i2pbench.execution.interrupts` tells the two apart).
+Untrusted plugins can run in a child process instead: `i2pbench.execution.isolation` wraps a pipeline so that its frames
+run there, where a time limit can kill a stage even when it holds the GIL.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from . import contracts, interrupts
+from . import contracts
 from .calling import StageInputs, call_stage
 from .components import (
     EXTRA_VALUES,
@@ -38,8 +38,9 @@ from .components import (
     Component,
 )
 from .errors import IsolationError, PluginError, StageError
+from .execution import interrupts
+from .execution.timeout import StageTimeout, TimeLimiter, timeout_from_env
 from .plugins import Registry
-from .timeout import StageTimeout, TimeLimiter, timeout_from_env
 from .trace import Failure, FrameOutcome, StageRecord, Upstream
 from .types import Frame, Keypoints2D, Keypoints3D
 
@@ -131,8 +132,8 @@ class Pipeline:
         stages: Mapping[str, Component],
         timeout_s: float | None | str = "env",
     ) -> None:
-        """`timeout_s`: seconds one frame may take; None disables; "env" reads I2PBENCH_STAGE_TIMEOUT_S. Stages run
-        in this process (`i2pbench.isolation.isolated` gives a pipeline whose frames run in a child process)."""
+        """`timeout_s`: seconds one frame may take; None disables; "env" reads I2PBENCH_STAGE_TIMEOUT_S. Stages run in
+        this process (`i2pbench.execution.isolation.isolated` gives a pipeline whose frames run in a child process)."""
         self.combination = combination
         self.stages = {k: stages[k] for k in STAGE_ORDER if k in stages}
         self.limiter = TimeLimiter(timeout_from_env() if timeout_s == "env" else timeout_s)

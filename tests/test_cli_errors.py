@@ -13,9 +13,9 @@ import pytest
 import torch
 
 from i2pbench.commands.diagnose import COLUMNS
-from i2pbench.devices import DeviceError, resolve_device
 from i2pbench.diagnostics import summarize_edge_diagnostics
 from i2pbench.errors import I2PBenchError
+from i2pbench.execution.devices import DeviceError, resolve_device
 from i2pbench.report.overlay import rre_text
 from i2pbench.runs.invocation import history
 from i2pbench.runs.store import ResultsStore

@@ -120,7 +120,7 @@ def test_whether_torch_has_gpu_support_is_read_without_importing_it(tmp_path, cu
     fake.mkdir()
     (fake / "__init__.py").write_text("raise ImportError('torch was imported')\n")
     (fake / "version.py").write_text(f"from typing import Optional\ncuda: Optional[str] = {cuda}\nhip = None\n")
-    check = "from i2pbench.devices import resolve_device_name, torch_gpu_build as gpu\n"
+    check = "from i2pbench.execution.devices import resolve_device_name, torch_gpu_build as gpu\n"
     check += "print(gpu(), '-' if gpu() else resolve_device_name('auto'))"
     env = {**os.environ, "PYTHONPATH": str(tmp_path)}
     out = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, check=True, env=env)

@@ -10,9 +10,9 @@ import pytest
 import torch
 import toy_plugin
 
-from i2pbench import isolation
 from i2pbench.errors import I2PBenchError
-from i2pbench.isolation import fingerprint, isolation_from_env
+from i2pbench.execution import isolation
+from i2pbench.execution.isolation import fingerprint, isolation_from_env
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol

@@ -1,5 +1,5 @@
 from i2pbench.cli import build_parser
-from i2pbench.progress import ENV_VAR, bar, quiet
+from i2pbench.execution.progress import ENV_VAR, bar, quiet
 
 
 def test_quiet_environment_silences_library_progress_bars(monkeypatch):

@@ -10,7 +10,7 @@ import toy_plugin
 from i2pbench.api import Encoder2D, Extractor2D, Features, Keypoints2D, Matcher, Matches
 from i2pbench.calling import StageInputs, call_stage
 from i2pbench.contracts import ContractError
-from i2pbench.isolation import isolated
+from i2pbench.execution.isolation import isolated
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.protocol import Protocol
 from i2pbench.testing import check_component, synthetic_frame

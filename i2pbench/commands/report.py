@@ -22,8 +22,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import progress
     from ..errors import I2PBenchError
+    from ..execution import progress
     from ..report.html import write_report
 
     out = Path(args.out or Path(args.run) / "report.html")

@@ -96,8 +96,8 @@ def run(args: argparse.Namespace) -> int:
 def _prepare(args: argparse.Namespace):
     """Everything checked before the run's store is made: options, combinations and their configs, the dataset and
     its frames, the protocols; returns (registry, combinations, dataset, frame ids, protocols, threads)."""
-    from ..devices import resolve_device_name
     from ..errors import DataError
+    from ..execution.devices import resolve_device_name
     from ..out_stem import board_stem
     from ..plugins import default_registry
     from ..runs.environment import fix_threads
@@ -122,7 +122,8 @@ def _prepare(args: argparse.Namespace):
 
 def _publish(args, registry, records, protocol, invocation, threads: int, wall_s: float, store_root: Path, stem: Path):
     """The finished run's board: recorded with the invocation, printed with its notes, then written to `stem`."""
-    from .. import leaderboard, progress
+    from .. import leaderboard
+    from ..execution import progress
     from .run_notes import failure_reasons, latency_reused
 
     board = leaderboard.build(records, protocol)

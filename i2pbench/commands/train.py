@@ -235,8 +235,8 @@ def _init_2d(pipeline, path: str) -> dict:
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from ..devices import resolve_device
-    from ..isolation import isolated
+    from ..execution.devices import resolve_device
+    from ..execution.isolation import isolated
     from ..pipeline import Pipeline
     from ..plugins import default_registry
     from ..runs.environment import fix_threads

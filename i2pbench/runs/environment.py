@@ -17,7 +17,7 @@ import sys
 
 import cv2
 
-from ..devices import torch_gpu_build
+from ..execution.devices import torch_gpu_build
 from ..provenance import git_commit, git_dirty
 
 PACKAGES = (

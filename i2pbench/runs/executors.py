@@ -29,8 +29,8 @@ import pandas as pd
 
 from ..data.base import Dataset
 from ..errors import I2PBenchError
-from ..interrupts import Interrupted
-from ..lifeline import exit_with_parent
+from ..execution.interrupts import Interrupted
+from ..execution.lifeline import exit_with_parent
 from ..pipeline import Combination
 from ..plugins import Registry
 from ..protocol import Protocol

@@ -15,7 +15,7 @@ from typing import Any
 from .. import layers
 from ..components import Component
 from ..data.base import Dataset
-from ..isolation import isolated
+from ..execution.isolation import isolated
 from ..pipeline import Combination, Pipeline, stage_classes
 from ..plugins import Registry
 from ..protocol import Protocol

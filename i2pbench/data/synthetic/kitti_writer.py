@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ...progress import bar
+from ...execution.progress import bar
 from . import pinned
 from .camera import render
 from .lidar import scan

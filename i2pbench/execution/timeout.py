@@ -10,7 +10,7 @@ The limit comes from `Pipeline(timeout_s=...)`, else the environment variable I2
 this module.
 
 A stage that holds the GIL (a long C call that does not release it) keeps the waiting caller asleep until it returns, so
-this limit cannot fire on it; `i2pbench.isolation` runs stages in a child process that can be killed instead.
+this limit cannot fire on it; `i2pbench.execution.isolation` runs stages in a child process that can be killed instead.
 """
 
 from __future__ import annotations

@@ -1,15 +1,15 @@
 """Process isolation for untrusted plugins: a frame's stages run in a child process, killed when time runs out.
 
-The stage time limit (`i2pbench.timeout`) abandons a thread, which cannot stop a stage holding the GIL in C, nor
-survive one that segfaults or calls os._exit. With I2PBENCH_ISOLATE=process (`i2pbench run --isolate process`) every
+The stage time limit (`i2pbench.execution.timeout`) abandons a thread, which cannot stop a stage holding the GIL in C,
+nor survive one that segfaults or calls os._exit. With I2PBENCH_ISOLATE=process (`i2pbench run --isolate process`) every
 process that runs frames keeps one spawned child, and `isolated` wraps each pipeline built to run frames so that its
 frames go there (the pipeline itself knows nothing of it). The child receives the pipeline (pickled, once, and again
-whenever its learned weights change), then one frame at a time; as each stage starts it says which, sending the
-records of the stages finished since (each stage's output crosses once), and at the end the last records and the
-failure, if any, from which the parent builds the frame's trace. A frame that overruns is failed in the running
-stage's name, keeping the records received, and the child is SIGKILLed; a child that crashes fails its frame the
-same way; the next frame starts a fresh child. The price: a second copy of the pipeline, a few seconds to start each
-child, and pickling every frame and stage output.
+whenever its learned weights change), then one frame at a time; as each stage starts it says which, sending the records
+of the stages finished since (each stage's output crosses once), and at the end the last records and the failure, if
+any, from which the parent builds the frame's trace. A frame that overruns is failed in the running stage's name,
+keeping the records received, and the child is SIGKILLed; a child that crashes fails its frame the same way; the next
+frame starts a fresh child. The price: a second copy of the pipeline, a few seconds to start each child, and pickling
+every frame and stage output.
 """
 
 from __future__ import annotations
@@ -26,16 +26,16 @@ from collections.abc import Sequence
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any
 
-from .errors import I2PBenchError, IsolationError
+from ..errors import I2PBenchError, IsolationError
+from ..pipeline import Pipeline
+from ..trace import FrameOutcome, StageRecord
 from .lifeline import exit_with_parent
-from .pipeline import Pipeline
 from .timeout import StageTimeout
-from .trace import FrameOutcome, StageRecord
 
 if TYPE_CHECKING:
     import torch
 
-    from .types import Frame
+    from ..types import Frame
 
 ENV_VAR = "I2PBENCH_ISOLATE"
 MODES = ("thread", "process")
@@ -117,7 +117,7 @@ class _Child:
             payload = pickle.dumps(pipeline)
         except Exception as exc:
             raise IsolationError(f"the pipeline does not pickle ({type(exc).__name__}: {exc})") from None
-        from .runs.environment import threads
+        from ..runs.environment import threads
 
         self._send(("load", payload, threads()))
         limit = None if timeout_s is None else max(START_LIMIT_S, timeout_s)
@@ -202,7 +202,7 @@ def _serve(conn: Connection) -> None:
 
 
 def _load(payload: bytes, threads: int) -> tuple[Pipeline | None, tuple[str, ...]]:
-    from .runs.environment import fix_threads
+    from ..runs.environment import fix_threads
 
     try:
         pipeline = pickle.loads(payload)

@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from .errors import I2PBenchError
+from ..errors import I2PBenchError
 
 if TYPE_CHECKING:
     import torch

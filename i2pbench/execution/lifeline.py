@@ -3,7 +3,7 @@
 A process-pool worker waits on a task queue whose write end it holds itself, so the parent's death never wakes it:
 a SIGKILLed driver left its workers (hundreds of MB each, model weights included) alive for good. On Linux the
 kernel kills the child when the parent dies (prctl PR_SET_PDEATHSIG). There "parent" means the thread that started
-the child: the main thread for pool workers; an isolated child (`i2pbench.isolation`) started by a thread that
+the child: the main thread for pool workers; an isolated child (`i2pbench.execution.isolation`) started by a thread that
 ends is restarted when next needed. Elsewhere a daemon thread polls os.getppid(), which changes when the child is
 re-parented.
 """
