@@ -40,7 +40,7 @@ if TYPE_CHECKING:
     from .hookspecs import Register, hookimpl
     from .learned import BatchedStage, Device, LearnedComponent, width_mismatch
     from .methods import Method, MethodPreset, Row, Size
-    from .metric_registry import Metric, Scored
+    from .metrics.registry import Metric, Scored
     from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
     from .weights import ImportedWeights
 
@@ -129,7 +129,7 @@ _MODULES = {
     "hookspecs": ("Register", "hookimpl"),
     "learned": ("BatchedStage", "Device", "LearnedComponent", "width_mismatch"),
     "methods": ("Method", "MethodPreset", "Row", "Size"),
-    "metric_registry": ("Metric", "Scored"),
+    "metrics.registry": ("Metric", "Scored"),
     "types": ("Features", "Frame", "Keypoints2D", "Keypoints3D", "Matches", "PoseEstimate", "SensorFrame"),
     "weights": ("ImportedWeights",),
 }

@@ -17,9 +17,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import installed_metrics, metric_registry, uncertainty
+from . import uncertainty
 from .components import STAGE_ORDER
-from .metric_registry import (  # noqa: F401 (the board's column names, read from here by the other modules)
+from .metrics import installed as installed_metrics
+from .metrics import registry as metric_registry
+from .metrics.pose import summarize
+from .metrics.registry import (  # noqa: F401 (the board's column names, read from here by the other modules)
     ACC,
     ACC_SKILL,
     CHANCE,
@@ -32,7 +35,6 @@ from .metric_registry import (  # noqa: F401 (the board's column names, read fro
     TRUE_MATCHES,
     Metric,
 )
-from .metrics import summarize
 from .protocol import Protocol
 from .scoring import recall
 from .scoring.cards import label

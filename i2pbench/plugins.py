@@ -374,7 +374,7 @@ def _add_method(registry: Registry, plugin: str, method: Any) -> None:
 
 def _add_metric(registry: Registry, plugin: str, metric: Any) -> None:
     """A plugin's metric; a name or column another metric has (a built-in's included) is refused, naming both."""
-    from .metric_registry import BUILTIN, check
+    from .metrics.registry import BUILTIN, check
 
     metric = check(metric, plugin)
     taken = {m.name: "i2pbench" for m in BUILTIN} | {m.column: "i2pbench" for m in BUILTIN if m.column}

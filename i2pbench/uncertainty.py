@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from . import stats
-from .metric_registry import Metric
+from .metrics.registry import Metric
 from .protocol import Protocol
 
 DIGEST = "frames digest"

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from i2pbench.diagnostics import edge_diagnostics_grid, summarize_edge_diagnostics
-from i2pbench.metrics import pose_errors
+from i2pbench.metrics.pose import pose_errors
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import default_registry
 from i2pbench.protocol import Protocol

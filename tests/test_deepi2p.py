@@ -49,8 +49,8 @@ from i2pbench.contracts import ContractError, check_matches
 from i2pbench.correspondence import true_match_mask
 from i2pbench.errors import PluginError
 from i2pbench.grid import base_combinations, expand
-from i2pbench.metric_registry import true_matches
-from i2pbench.metrics import pose_errors
+from i2pbench.metrics.pose import pose_errors
+from i2pbench.metrics.registry import true_matches
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol

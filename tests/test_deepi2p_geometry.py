@@ -19,7 +19,7 @@ from i2pbench_deepi2p.poses import full_pose, planar_params, planar_pose
 from scipy.spatial.transform import Rotation
 
 from i2pbench.geometry import invert, make_transform, project
-from i2pbench.metrics import pose_errors
+from i2pbench.metrics.pose import pose_errors
 from i2pbench.protocol import Protocol
 from i2pbench.types import Frame, Keypoints3D
 

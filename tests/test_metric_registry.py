@@ -11,7 +11,7 @@ from i2pbench import leaderboard, plugins, uncertainty
 from i2pbench.api import Metric, hookimpl
 from i2pbench.cli import main
 from i2pbench.errors import PluginError
-from i2pbench.installed_metrics import by_name
+from i2pbench.metrics.installed import by_name
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import build_registry, components_of
 from i2pbench.protocol import Protocol

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from i2pbench.geometry import make_transform, rot_z
-from i2pbench.metrics import pose_errors, summarize
+from i2pbench.metrics.pose import pose_errors, summarize
 from i2pbench.protocol import Protocol
 
 VECTORS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "metric_vectors.json"

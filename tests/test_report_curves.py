@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from i2pbench.metrics import summarize
+from i2pbench.metrics.pose import summarize
 from i2pbench.protocol import Protocol
 from i2pbench.report import curves, html
 from i2pbench.report.rundir import best_and_worst, frame_score, pose

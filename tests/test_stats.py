@@ -10,7 +10,7 @@ import pytest
 from i2pbench import leaderboard, stats, uncertainty
 from i2pbench.cli import main
 from i2pbench.components import STAGE_ORDER
-from i2pbench.installed_metrics import by_name
+from i2pbench.metrics.installed import by_name
 from i2pbench.paper_table import TableRow, build
 from i2pbench.regression_gate import compare, format_report, parse_tolerances
 

@@ -51,7 +51,7 @@ def resolve_frame(frame_ids: list[str], frame: str) -> str:
 def run(args: argparse.Namespace) -> int:
     from ..errors import I2PBenchError, PluginError
     from ..execution.devices import resolve_device
-    from ..metrics import pose_errors
+    from ..metrics.pose import pose_errors
     from ..plugins import default_registry
     from ..protocol import Protocol
     from ..report import overlay

@@ -3,7 +3,7 @@
 The records of one invocation's grid (its combinations, frames and protocol, as its `invocations/<id>.json` file
 lists them) are read back, their pose errors recomputed from the stored T_pred and T_gt, and the leaderboard built
 under the run's protocol card, or under other success and filter thresholds, with every registered metric
-(`metric_registry`): one a plugin adds is aggregated from the per-frame values its records stored.
+(`metrics.registry`): one a plugin adds is aggregated from the per-frame values its records stored.
 """
 
 from __future__ import annotations
@@ -19,10 +19,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .. import __version__, installed_metrics, leaderboard
+from .. import __version__, leaderboard
 from ..errors import I2PBenchError
-from ..metric_registry import Scored
-from ..metrics import FAILED, pose_errors
+from ..metrics import installed as installed_metrics
+from ..metrics.pose import FAILED, pose_errors
+from ..metrics.registry import Scored
 from ..protocol import Protocol
 from .invocation import history, record_file, written_by
 from .store import ResultsStore

@@ -26,9 +26,9 @@ from ..components import STAGE_ORDER
 from ..corruptions import CorruptionError
 from ..data.base import Dataset
 from ..errors import I2PBenchError
-from ..installed_metrics import record_values
-from ..metric_registry import Scored
-from ..metrics import pose_errors
+from ..metrics.installed import record_values
+from ..metrics.pose import pose_errors
+from ..metrics.registry import Scored
 from ..pipeline import FrameOutcome
 from ..protocol import Protocol
 from ..types import Frame, PoseEstimate

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from ..data.base import Dataset
-from ..metric_registry import true_matches
+from ..metrics.registry import true_matches
 from ..protocol import Protocol
 from .executors import InProcessExecutor, run_grid, run_work
 from .frames import run_frame

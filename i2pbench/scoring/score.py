@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from ..geometry import invert
-from ..metrics import xzy_euler_deg
+from ..metrics.pose import xzy_euler_deg
 from .rules import ScoringRules
 
 

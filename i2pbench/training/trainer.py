@@ -28,12 +28,12 @@ import numpy as np
 import pandas as pd
 import torch
 
-from .. import installed_metrics
 from ..components import TrainableMatcher
 from ..data.base import Dataset
 from ..errors import I2PBenchError, PluginError, WeightsError
 from ..learned import LearnedComponent
-from ..metrics import summarize
+from ..metrics import installed as installed_metrics
+from ..metrics.pose import summarize
 from ..pipeline import Pipeline
 from ..protocol import Protocol
 from ..types import Frame

@@ -1,4 +1,4 @@
-"""The metrics in force: i2pbench's own (`metric_registry.BUILTIN`), then those the installed plugins register, and
+"""The metrics in force: i2pbench's own (`registry.BUILTIN`), then those the installed plugins register, and
 what the store, boards and training validation compute from them."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from . import plugins
-from .metric_registry import BUILTIN, Metric, Scored
-from .protocol import Protocol
+from .. import plugins
+from ..protocol import Protocol
+from .registry import BUILTIN, Metric, Scored
 
 
 def active() -> tuple[Metric, ...]:

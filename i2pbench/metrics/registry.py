@@ -2,7 +2,7 @@
 
 The results store (`runs.frames`), the leaderboard (`leaderboard.build`, so `run` and `evaluate`), training
 validation and `compare --tolerance NAME=...` all read the `Metric`s here, with the plugins' ones
-(`installed_metrics`); none spells a metric out itself.
+(`metrics.installed`); none spells a metric out itself.
 
 To add a metric, declare it and register it from a plugin (or append it to BUILTIN for a core one):
 
@@ -31,13 +31,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from .errors import PluginError
-from .metrics import PoseErrors, success
-from .protocol import Protocol
+from ..errors import PluginError
+from ..protocol import Protocol
+from .pose import PoseErrors, success
 
 if TYPE_CHECKING:
-    from .trace import FrameOutcome
-    from .types import Frame
+    from ..trace import FrameOutcome
+    from ..types import Frame
 
 ACC, RTE, RRE = "Acc. (%) ↑", "RTE (m) ↓", "RRE (°) ↓"
 RTE_MEAN, RRE_MEAN = "rte_mean", "rre_mean"
@@ -153,7 +153,7 @@ def _geodesic(records: pd.DataFrame, protocol: Protocol) -> np.ndarray | None:
 def true_matches(frame: Frame | None, outcome: FrameOutcome) -> float:
     """How many of the matcher's pairs are true under T_gt (within eps_c, or the matcher's own `Matches.radius_px`);
     NaN when the matcher did not run."""
-    from .correspondence import true_match_mask  # scipy: only when a frame is scored
+    from ..correspondence import true_match_mask  # scipy: only when a frame is scored
 
     if frame is None or frame.T_gt is None or outcome.matched_uv is None or outcome.matched_xyz is None:
         return float("nan")
