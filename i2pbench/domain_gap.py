@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from . import leaderboard
+from .boards import leaderboard
 from .components import Extractor2D, Extractor3D
 from .diagnostics import pair_row
 from .geometry import in_image, project

@@ -1,5 +1,5 @@
 """Pool the test folds of a k-fold run by scene and print Acc. with true matches and the true-matches median, each
-with a 95% interval from resampling whole scenes (i2pbench.crossval).
+with a 95% interval from resampling whole scenes (i2pbench.boards.crossval).
 
     for k in 1 2 3 4 5; do i2pbench run --dataset kitti-drives --data-root ../shared/data --split test --fold $k/5 \
         --preset default --weights weights/fold$k.pt; done
@@ -17,9 +17,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from i2pbench.crossval import cross_validated
+from i2pbench.boards.crossval import cross_validated
+from i2pbench.boards.leaderboard import to_markdown
 from i2pbench.data.kitti_drives import DEFAULT_SPLIT_FILE, KittiDrives
-from i2pbench.leaderboard import to_markdown
 
 
 def main(argv: list[str] | None = None) -> int:

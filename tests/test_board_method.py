@@ -4,7 +4,7 @@ matcher the row runs (ablations included), else the plugin of its matcher ("clas
 import pandas as pd
 import pytest
 
-from i2pbench import leaderboard
+from i2pbench.boards import leaderboard
 from i2pbench.components import STAGE_ORDER
 from i2pbench.methods import Method, Size, method_of
 from i2pbench.plugins import default_registry

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from i2pbench import leaderboard
+from i2pbench.boards import leaderboard
 from i2pbench.cli import main
 from i2pbench.runs import board_env
 from i2pbench.runs.invocation import Invocation

@@ -14,8 +14,8 @@ import pandas as pd
 import pytest
 import toy_plugin
 
-from i2pbench import leaderboard
 from i2pbench.api import Corruption, hookimpl
+from i2pbench.boards import leaderboard
 from i2pbench.corruptions import CorruptionError
 from i2pbench.errors import I2PBenchError, PluginError
 from i2pbench.grid import protocols

@@ -14,7 +14,7 @@ from i2pbench_classic.extract2d import CannyExtractor
 from i2pbench_classic.extract3d import DepthExtractor
 from i2pbench_classic.matchers import OracleMatcher
 
-from i2pbench import leaderboard
+from i2pbench.boards import leaderboard
 from i2pbench.cli import main
 from i2pbench.data.kitti import KittiOdometry
 from i2pbench.pipeline import Combination, Pipeline

@@ -6,11 +6,11 @@ import math
 import pandas as pd
 import pytest
 
-from i2pbench import leaderboard
+from i2pbench.boards import leaderboard
+from i2pbench.boards.leaderboard import ACC, LATENCY_MEDIAN
+from i2pbench.boards.regression_gate import Tolerance, compare, format_report, parse_tolerances
 from i2pbench.cli import main
 from i2pbench.errors import I2PBenchError
-from i2pbench.leaderboard import ACC, LATENCY_MEDIAN
-from i2pbench.regression_gate import Tolerance, compare, format_report, parse_tolerances
 
 GATE = "acc=-2,rte=+0.05,rre=+0.2,latency=x1.5"
 

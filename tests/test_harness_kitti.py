@@ -7,7 +7,7 @@ import sys
 import pandas as pd
 import pytest
 
-from i2pbench import leaderboard
+from i2pbench.boards import leaderboard
 from i2pbench.grid import expand
 from i2pbench.plugins import default_registry
 from i2pbench.protocol import Protocol

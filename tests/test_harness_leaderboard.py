@@ -6,9 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from i2pbench import leaderboard
-from i2pbench.components import STAGE_ORDER
-from i2pbench.leaderboard import (
+from i2pbench.boards import leaderboard
+from i2pbench.boards.leaderboard import (
     ACC,
     ACC_SKILL,
     CHANCE,
@@ -20,6 +19,7 @@ from i2pbench.leaderboard import (
     TRUE_MATCHES,
     stage_latency,
 )
+from i2pbench.components import STAGE_ORDER
 
 
 def _records(combination: str, rte, rre, t_total, crashed=()) -> pd.DataFrame:

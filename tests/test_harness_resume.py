@@ -10,7 +10,7 @@ import time
 import pandas as pd
 import pytest
 
-from i2pbench import leaderboard
+from i2pbench.boards import leaderboard
 from i2pbench.grid import base_combinations, expand
 from i2pbench.plugins import default_registry
 from i2pbench.protocol import Protocol

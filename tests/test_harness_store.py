@@ -12,7 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 import toy_plugin
 
-from i2pbench import leaderboard
+from i2pbench.boards import leaderboard
 from i2pbench.pipeline import Combination
 from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol

@@ -14,7 +14,7 @@ import pytest
 from test_cli_errors import i2pbench
 from test_report_html import KITTI, TRAP, chromium
 
-from i2pbench import leaderboard as lb
+from i2pbench.boards import leaderboard as lb
 from i2pbench.report import curves
 from i2pbench.report.rundir import load_run
 

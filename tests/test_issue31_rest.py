@@ -285,8 +285,8 @@ def test_an_empty_grid_file_is_refused_instead_of_running_the_default(tmp_path, 
 
 
 def test_a_tolerance_given_twice_is_refused():
+    from i2pbench.boards.regression_gate import parse_tolerances
     from i2pbench.errors import I2PBenchError
-    from i2pbench.regression_gate import parse_tolerances
 
     assert [t.metric for t in parse_tolerances("acc=-2,rte=+0.05")] == ["acc", "rte"]
     with pytest.raises(I2PBenchError, match=r"tolerance 'acc=-2,rte=\+0.05,acc=-1': acc given twice; give each"):

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 from test_train_cli import TINY
 
-from i2pbench.crossval import cross_validated, scene_bootstrap
+from i2pbench.boards.crossval import cross_validated, scene_bootstrap
 from i2pbench.data.kitti_drives import (
     DEFAULT_SPLIT_FILE,
     KittiDrives,

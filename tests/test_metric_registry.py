@@ -7,15 +7,16 @@ import torch
 import toy_plugin
 from test_weights_and_training import LEARNED, Clean
 
-from i2pbench import leaderboard, plugins, uncertainty
+from i2pbench import plugins
 from i2pbench.api import Metric, hookimpl
+from i2pbench.boards import leaderboard, uncertainty
+from i2pbench.boards.regression_gate import compare, parse_tolerances
 from i2pbench.cli import main
 from i2pbench.errors import PluginError
 from i2pbench.metrics.installed import by_name
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import build_registry, components_of
 from i2pbench.protocol import Protocol
-from i2pbench.regression_gate import compare, parse_tolerances
 from i2pbench.runs.jobs import frame_key, prepare, upstream_key
 from i2pbench.runs.store import ResultsStore
 from i2pbench.training.trainer import TrainConfig, Trainer

@@ -9,11 +9,11 @@ import pandas as pd
 import pytest
 import toy_plugin
 
-from i2pbench import paper_table
+from i2pbench.boards import paper_table
+from i2pbench.boards.leaderboard import ACC, ACC_SKILL, CHANCE, MODEL_SIZE, RTE, TRUE_MATCHES, write
 from i2pbench.cli import main
 from i2pbench.errors import I2PBenchError, PluginError
 from i2pbench.grid import base_combinations
-from i2pbench.leaderboard import ACC, ACC_SKILL, CHANCE, MODEL_SIZE, RTE, TRUE_MATCHES, write
 from i2pbench.plugins import build_registry, default_registry
 
 TRUTH = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}

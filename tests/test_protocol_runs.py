@@ -5,7 +5,8 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from i2pbench import leaderboard, plugins
+from i2pbench import plugins
+from i2pbench.boards import leaderboard
 from i2pbench.cli import main
 from i2pbench.hookspecs import hookimpl
 from i2pbench.protocol import Protocol

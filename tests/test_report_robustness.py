@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from i2pbench import leaderboard as lb
+from i2pbench.boards import leaderboard as lb
 from i2pbench.cli import main
 from i2pbench.errors import DataError
 from i2pbench.plugins import default_registry

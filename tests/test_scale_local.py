@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 import toy_plugin
 
-from i2pbench import leaderboard
+from i2pbench.boards import leaderboard
 from i2pbench.errors import I2PBenchError
 from i2pbench.grid import expand
 from i2pbench.pipeline import Combination

@@ -10,7 +10,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from i2pbench import leaderboard
+from i2pbench.boards import leaderboard
 from i2pbench.data.kitti import KittiOdometry
 from i2pbench.grid import expand
 from i2pbench.pipeline import Combination

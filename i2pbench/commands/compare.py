@@ -14,7 +14,7 @@ EXIT_CODES += "table missing, empty, header-only, binary, ragged or not a leader
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    from ..regression_gate import DEFAULT_TOLERANCE, METRICS
+    from ..boards.regression_gate import DEFAULT_TOLERANCE, METRICS
 
     p = sub.add_parser(
         "compare",
@@ -40,8 +40,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Errors are I2PBenchErrors, which the CLI prints on one line and turns into exit status 2."""
+    from ..boards.regression_gate import compare, format_report, parse_tolerances, read_board
     from ..errors import I2PBenchError
-    from ..regression_gate import compare, format_report, parse_tolerances, read_board
     from ..runs.board_env import warnings
 
     tolerances = parse_tolerances(args.tolerance)

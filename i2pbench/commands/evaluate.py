@@ -42,9 +42,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import leaderboard
+    from ..boards import leaderboard
+    from ..boards.out_stem import board_stem
     from ..errors import I2PBenchError
-    from ..out_stem import board_stem
     from ..runs import board_env
     from ..runs.evaluate import evaluate
 

@@ -96,9 +96,9 @@ def run(args: argparse.Namespace) -> int:
 def _prepare(args: argparse.Namespace):
     """Everything checked before the run's store is made: options, combinations and their configs, the dataset and
     its frames, the protocols; returns (registry, combinations, dataset, frame ids, protocols, threads)."""
+    from ..boards.out_stem import board_stem
     from ..errors import DataError
     from ..execution.devices import resolve_device_name
-    from ..out_stem import board_stem
     from ..plugins import default_registry
     from ..runs.environment import fix_threads
     from ..scoring.installed import for_run
@@ -122,7 +122,7 @@ def _prepare(args: argparse.Namespace):
 
 def _publish(args, registry, records, protocol, invocation, threads: int, wall_s: float, store_root: Path, stem: Path):
     """The finished run's board: recorded with the invocation, printed with its notes, then written to `stem`."""
-    from .. import leaderboard
+    from ..boards import leaderboard
     from ..execution import progress
     from .run_notes import failure_reasons, latency_reused
 
@@ -207,7 +207,7 @@ def _protocols(registry, base, args: argparse.Namespace, dataset, frame_ids: lis
 
 def _robustness(registry, board):
     """The summary per corruption when the board has corrupted rows (printed and written beside it), else None."""
-    from .. import leaderboard
+    from ..boards import leaderboard
 
     if (board["corruption"] == "").all():
         return None
@@ -233,7 +233,7 @@ def _open_store(root: Path):
 def _write_board(board, records, stem: Path, store_root: Path, summary=None) -> list[Path]:
     """The leaderboard's files with the environment record of the invocations whose frames it holds (and the
     robustness summary's, `<stem>-robustness`); an unwritable folder is an error that says nothing computed is lost."""
-    from .. import leaderboard
+    from ..boards import leaderboard
     from ..errors import I2PBenchError
     from ..runs import board_env
 
@@ -272,7 +272,7 @@ def _meta(args, threads: int, protocols, dataset, frame_ids: list[str], combinat
 
 
 def _summary(records, board, invocation: str, wall_s: float) -> dict[str, Any]:
-    from .. import leaderboard
+    from ..boards import leaderboard
 
     computed = int((records["invocation"] == invocation).sum())
     return {

@@ -61,7 +61,7 @@ def stopped(exc: KeyboardInterrupt, store: Any, invocation: Any, protocol: Any) 
 
     import pandas as pd
 
-    from .. import leaderboard
+    from ..boards import leaderboard
 
     records = _finished(getattr(exc, "records", []), store, invocation.id)
     meta = invocation.meta

@@ -28,10 +28,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import paper_table
+    from ..boards import paper_table
+    from ..boards.regression_gate import read_board
     from ..errors import I2PBenchError, os_problem
     from ..plugins import default_registry
-    from ..regression_gate import read_board
 
     names = [name for name, _ in args.boards]
     if len(set(names)) != len(names):

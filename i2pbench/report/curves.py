@@ -15,8 +15,8 @@ import pandas as pd
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter
 
+from ..boards.leaderboard import LATENCY_MEDIAN, stage_latency
 from ..components import STAGE_ORDER
-from ..leaderboard import LATENCY_MEDIAN, stage_latency
 from ..protocol import Protocol
 
 ROW = ["combination", "weights"]  # one curve per leaderboard row of a dataset split

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import pandas as pd
 
-from .. import leaderboard as lb
+from ..boards import leaderboard as lb
 from ..protocol import Protocol
 from .curves import ROW
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .. import leaderboard as lb
+from ..boards import leaderboard as lb
 from ..scoring.installed import rescored
 from . import curves, framesets, overlay, robustness, sequences
 from .examples import Example, render_examples

@@ -21,7 +21,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from .. import leaderboard as lb
+from ..boards import leaderboard as lb
 from ..corruptions import MAX_LEVELS, Corruption
 from ..errors import DataError, I2PBenchError
 from ..plugins import default_registry

@@ -18,7 +18,7 @@ from typing import Any
 import pandas as pd
 import pyarrow.parquet as pq
 
-from ..leaderboard import GROUP
+from ..boards.leaderboard import GROUP
 from .invocation import history
 
 SUFFIX = ".env.json"

@@ -19,7 +19,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .. import __version__, leaderboard
+from .. import __version__
+from ..boards import leaderboard
 from ..errors import I2PBenchError
 from ..metrics import installed as installed_metrics
 from ..metrics.pose import FAILED, pose_errors

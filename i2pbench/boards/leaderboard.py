@@ -17,12 +17,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import uncertainty
-from .components import STAGE_ORDER
-from .metrics import installed as installed_metrics
-from .metrics import registry as metric_registry
-from .metrics.pose import summarize
-from .metrics.registry import (  # noqa: F401 (the board's column names, read from here by the other modules)
+from ..components import STAGE_ORDER
+from ..metrics import installed as installed_metrics
+from ..metrics import registry as metric_registry
+from ..metrics.pose import summarize
+from ..metrics.registry import (  # noqa: F401 (the board's column names, read from here by the other modules)
     ACC,
     ACC_SKILL,
     CHANCE,
@@ -35,10 +34,11 @@ from .metrics.registry import (  # noqa: F401 (the board's column names, read fr
     TRUE_MATCHES,
     Metric,
 )
-from .protocol import Protocol
-from .scoring import recall
-from .scoring.cards import label
-from .scoring.installed import rescored
+from ..protocol import Protocol
+from ..scoring import recall
+from ..scoring.cards import label
+from ..scoring.installed import rescored
+from . import uncertainty
 
 GROUP = ["dataset", "split", "combination", "weights"]
 CONDITION = ["corruption", "severity"]  # a row's protocol corruption; "" for clean rows
@@ -139,8 +139,8 @@ def build(
 def _methods(board: pd.DataFrame) -> list[str]:
     """Each row's method (DeepI2P, EdgeRegNet, ...; "classic" for the classic plugin's matchers), as the installed
     plugins declare them (`methods.method_of`)."""
-    from .methods import method_of
-    from .plugins import default_registry
+    from ..methods import method_of
+    from ..plugins import default_registry
 
     registry = default_registry()
     methods = {name: method for name, (method, _) in registry.methods.items()}

@@ -10,7 +10,7 @@ import stat
 import sys
 from pathlib import Path
 
-from .errors import I2PBenchError
+from ..errors import I2PBenchError
 
 WRITTEN = (".csv", ".md", ".parquet", ".env.json")
 

@@ -17,12 +17,12 @@ from pathlib import Path
 
 import pandas as pd
 
+from ..errors import I2PBenchError
+from ..grid import expand
+from ..metrics import installed as installed_metrics
+from ..plugins import Registry
 from . import uncertainty
-from .errors import I2PBenchError
-from .grid import expand
 from .leaderboard import ACC, ACC_SKILL, CHANCE, LATENCY_MEDIAN, MODEL_SIZE, RRE, RTE, TRUE_MATCHES, to_markdown
-from .metrics import installed as installed_metrics
-from .plugins import Registry
 
 PER_DATASET = ("frames", RTE, RRE, ACC, CHANCE, ACC_SKILL, TRUE_MATCHES, LATENCY_MEDIAN)
 COUNTS = ("frames", CHANCE)  # shown as whole numbers

@@ -12,10 +12,10 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import pandas as pd
 
+from ..metrics.installed import by_name
+from ..metrics.registry import BUILTIN
+from ..protocol import Protocol
 from .leaderboard import ACC_SKILL, TRUE_MATCHES
-from .metrics.installed import by_name
-from .metrics.registry import BUILTIN
-from .protocol import Protocol
 
 BOOTSTRAP_DRAWS = 2000
 

@@ -28,9 +28,11 @@ from pathlib import Path
 
 import pandas as pd
 
+from ..components import STAGE_ORDER
+from ..errors import I2PBenchError
+from ..metrics import installed as installed_metrics
+from ..metrics import registry as metric_registry
 from . import uncertainty
-from .components import STAGE_ORDER
-from .errors import I2PBenchError
 from .leaderboard import (
     ACC,
     GROUP,
@@ -42,8 +44,6 @@ from .leaderboard import (
     read,
     stage_latency,
 )
-from .metrics import installed as installed_metrics
-from .metrics import registry as metric_registry
 from .stats import Paired
 
 DEFAULT_TOLERANCE = "acc=-2,rte=+0.05,rre=+0.2"

@@ -16,9 +16,9 @@ from collections.abc import Iterable
 import numpy as np
 import pandas as pd
 
+from ..metrics.registry import Metric
+from ..protocol import Protocol
 from . import stats
-from .metrics.registry import Metric
-from .protocol import Protocol
 
 DIGEST = "frames digest"
 VERSUS = "differs from row above"  # the Markdown board's verdict on each row against the one ranked above it
