@@ -48,11 +48,11 @@ def popen(*args: str, env: dict[str, str], cwd: Path) -> subprocess.Popen:
             cwd=cwd,
             stdout=log,
             stderr=subprocess.STDOUT,
-            preexec_fn=_default_sigint,
+            preexec_fn=default_sigint,
         )
 
 
-def _default_sigint() -> None:
+def default_sigint() -> None:
     """a child that hears Ctrl-C whatever started the tests: an ignored SIGINT (a background job, nohup, some CI
     runners) is inherited across exec, and the child would never see the test's SIGINT."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 from i2pbench_classic.extract2d import CannyExtractor
+from plugin_dists import default_sigint
 from test_report_html import KITTI
 
 from i2pbench.api import hookimpl
@@ -63,7 +64,12 @@ def _interrupted_run(tmp_path: Path, *extra: str) -> tuple[subprocess.CompletedP
             "stall-after-first", "--extractor3d", "depth", "--matcher", "oracle", "--solver", "epnp-ransac",
             "--runs-dir", str(runs), "--quiet", *extra]  # fmt: skip
     process = subprocess.Popen(
-        [sys.executable, str(launcher), *args], cwd=tmp_path, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+        [sys.executable, str(launcher), *args],
+        cwd=tmp_path,
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        preexec_fn=default_sigint,  # else a suite started under nohup hands the run an ignored SIGINT
     )
     frames = runs / "kitti-all" / "frames"
     deadline = time.monotonic() + 300  # a guard against a hang, not a timing assertion
