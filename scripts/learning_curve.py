@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -258,10 +259,10 @@ def val_loss(weights: Path, preset: str, confs: dict[str, dict], data_root: str)
     return {f"val_{k}": round(sum(t[k] for t in terms) / len(terms), 2) for k in ("P", "fov")}
 
 
-PANELS = (  # column, axis label, target (None: none)
-    ("acc_true_pct", "Acc. with >= 4 true matches (%)", 30),
-    ("true_matches_median", "true matches median", 10),
-    ("val_P", "matching loss L_P on the val drives\n(chance 2 ln 2048 = 15.2)", None),
+PANELS = (  # column, axis label, the target or a reference line, its name
+    ("acc_true_pct", "Acc. with >= 4 true matches (%)", 30, "target"),
+    ("true_matches_median", "true matches median", 10, "target"),
+    ("val_P", "matching loss L_P on the val drives", 2 * math.log(2048), "chance, 2 ln 2048"),
 )
 
 
@@ -275,19 +276,20 @@ def plot(frame: pd.DataFrame, png: Path) -> None:
     low = frame.loc[frame["drives"] > 0, "steps"].min()
     curve = frame[frame["arm"].isin(ARMS) & (frame["lever"] == "")]
     ticks = sorted(curve["drives"].unique())
-    for ax, (key, label, target) in zip(fig.subplots(1, len(panels)), panels, strict=True):
-        for (arm, steps), rows in curve.groupby(["arm", "steps"]):
-            name = "synthetic pretraining" if arm == "synthetic" else "from scratch"
-            style = {"marker": "o" if arm == "synthetic" else "s", "linestyle": "-" if steps == low else "--"}
-            ax.plot(rows["drives"], rows[key], label=f"{name}, {steps} steps", **style)
+    for ax, (key, label, line, line_name) in zip(fig.subplots(1, len(panels)), panels, strict=True):
+        for arm, colour, marker in zip(ARMS, ("C0", "C1"), "os", strict=True):
+            for steps, rows in curve[curve["arm"] == arm].groupby("steps"):
+                name = f"{'synthetic pretraining' if arm == 'synthetic' else 'from scratch'}, {steps} steps"
+                style = {"color": colour, "marker": marker, "linestyle": "-" if steps == low else "--"}
+                ax.plot(rows["drives"], rows[key], label=name, **style)
         ax.axhline(float(shipped[key]), color="grey", linestyle=":", label="shipped (synthetic only)")
-        if target is not None:
-            ax.axhline(target, color="red", linestyle="--", label="target")
+        ax.axhline(line, color="red", linestyle="--", linewidth=0.8)
+        ax.annotate(line_name, (ticks[0], line), fontsize=7, color="red", va="bottom")
         ax.set_xscale("log")
         ax.set_xticks(ticks, [str(d) for d in ticks])
         ax.set_xlabel("training drives (train list, in order)")
         ax.set_ylabel(label)
-    fig.axes[0].legend(fontsize=7, loc="upper left")
+    fig.axes[0].legend(fontsize=7, loc="center left")
     fig.suptitle("EdgeRegNet CPU size, validated on 5 held-out drives (8 frames), protocol seed 0", fontsize=9)
     fig.tight_layout()
     png.parent.mkdir(parents=True, exist_ok=True)
