@@ -21,7 +21,9 @@ copies of the 1- and 13-drive checkpoints continued to 100 steps (train resumes 
     python scripts/learning_curve.py --work /tmp/lc --steps 50 --jobs 4 --levers aliked,mix
     mkdir -p /tmp/lc100/runs && cp /tmp/lc/runs/{synthetic,scratch}-{1,13}.pt* /tmp/lc100/runs/
     python scripts/learning_curve.py --work /tmp/lc100 --steps 100 --jobs 2 --drives 13,1
-    python scripts/learning_curve.py --work /tmp/lc --also /tmp/lc100 --table-only --val-loss --jobs 3 \
+    # the 13-drive pair again, copied from /tmp/lc100 to /tmp/lc200, to 200 steps:
+    python scripts/learning_curve.py --work /tmp/lc200 --steps 200 --jobs 1 --drives 13
+    python scripts/learning_curve.py --work /tmp/lc --also /tmp/lc100 /tmp/lc200 --table-only --val-loss --jobs 3 \
         --csv docs/results/learning-curve.csv --md docs/results/learning-curve.md --png docs/img/learning-curve.png
 
 A rerun skips what is done: `train` resumes from its checkpoint and stops at --steps; `run` reuses its cache.
