@@ -19,11 +19,13 @@ import os
 import queue
 import sys
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
 DEFAULT_TIMEOUT_S = 300.0
 ENV_VAR = "I2PBENCH_STAGE_TIMEOUT_S"
+WAKE_S = 0.2  # how often the caller wakes while a stage runs, to take a Ctrl-C (see _wait)
 
 
 class StageTimeout(Exception):
@@ -101,7 +103,7 @@ class TimeLimiter:
         task = _Task(fn)
         self._worker().put(task)
         try:
-            finished = task.done.wait(self.timeout_s)
+            finished = _wait(task.done, self.timeout_s)
         except BaseException:  # a Ctrl-C while waiting: the worker is still busy with fn, so no later call may queue
             self._retire()
             raise
@@ -124,6 +126,17 @@ class TimeLimiter:
             threading.Thread(target=_serve, args=(tasks,), name="i2pbench-stage", daemon=True).start()
             self._tasks, self._pid = tasks, os.getpid()
         return self._tasks
+
+
+def _wait(done: threading.Event, timeout_s: float) -> bool:
+    """done.wait(timeout_s) in short slices: a SIGINT the kernel hands to the stage's thread only sets Python's flag,
+    and the main thread runs the handler (KeyboardInterrupt) when it next wakes, so one long wait held Ctrl-C until the
+    stage's time limit."""
+    deadline = time.monotonic() + timeout_s
+    while (remaining := deadline - time.monotonic()) > 0:
+        if done.wait(min(remaining, WAKE_S)):
+            return True
+    return done.is_set()
 
 
 def _serve(tasks: queue.SimpleQueue[_Task | None]) -> None:
