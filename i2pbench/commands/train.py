@@ -101,6 +101,7 @@ CONFIG_OPTIONS: dict[str, tuple[Any, str, str | None]] = {
         "torch.compile the stages' fixed-shape blocks with this backend (inductor; aot_eager: no C++ compiler)",
         "BACKEND",
     ),  # fmt: skip
+    "freeze": (str, "learned stages kept as loaded, a comma list (e.g. encoder3d,exchanger,matcher)", "KINDS"),
     "checkpoint_every": (positive_int, "optimiser steps between checkpoints", None),
     "validate_every": (positive_int, "optimiser steps between validations", None),
     "val_frames": (positive_int, "validation frames, spread over the split", None),

@@ -27,3 +27,4 @@ class TrainConfig:
     augment: str = "none"  # "photometric": per-sample exposure, contrast, noise and blur of the image (augment.py)
     deterministic: bool = False  # torch's deterministic kernels only (an op without one raises, naming itself)
     compile: str = "off"  # a torch.compile backend ("inductor", "aot_eager") for the stages' `compile_targets`
+    freeze: str = "none"  # learned stages kept as loaded (comma list of kinds, e.g. "encoder3d,exchanger,matcher")

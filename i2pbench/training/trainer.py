@@ -130,6 +130,22 @@ class Distributed:
         return self.rank == 0
 
 
+def frozen_stages(pipeline: Pipeline, freeze: str) -> tuple[str, ...]:
+    """the learned stage kinds `freeze` names ("none": none), each checked to be one of the pipeline's learned stages:
+    fine-tuning on few frames can keep most of a pretrained model as it is and adapt the rest."""
+    kinds = tuple(k.strip() for k in (freeze or "none").split(",") if k.strip() and k.strip() != "none")
+    learned = pipeline.learned_modules()
+    unknown = [k for k in kinds if k not in learned]
+    if unknown:
+        raise I2PBenchError(
+            f"--freeze {unknown[0]!r}: not a learned stage of {pipeline.combination.label}; "
+            f"choose from {', '.join(learned) or 'none (no learned stage)'}"
+        )
+    if learned and set(kinds) == set(learned):
+        raise I2PBenchError(f"--freeze {freeze!r}: every learned stage frozen leaves nothing to train")
+    return kinds
+
+
 class TrainModel(torch.nn.Module):
     """the learned stages as one module whose forward is the batch loss: what DDP wraps."""
 
@@ -171,7 +187,12 @@ class Trainer:
         pipeline.to(self.device)
         self.compiled = compile_stages(pipeline.learned_modules(), config.compile) if config.compile != "off" else []
         self.model = TrainModel(pipeline)
-        self.params = [p for m in pipeline.learned_modules().values() for p in m.parameters()]
+        self.frozen = frozen_stages(pipeline, config.freeze)
+        self.params = [
+            p for kind, m in pipeline.learned_modules().items() if kind not in self.frozen for p in m.parameters()
+        ]
+        for kind in self.frozen:
+            pipeline.stages[kind].requires_grad_(False)
         # fused on CUDA: one kernel for all parameters, and no per-parameter step counter read back by the host
         self.optimizer = torch.optim.Adam(self.params, lr=config.lr, fused=self.device.type == "cuda")
         self.samples = TrainingSamples(
@@ -233,7 +254,10 @@ class Trainer:
                 f"resumed at step {self.step} with a fresh optimiser ({state_path.name} belongs to another save of "
                 f"{self.out.name}: step {state.get('step')}, an interrupted checkpoint)"
             )
-        self.optimizer.load_state_dict(state["optimizer"])
+        try:
+            self.optimizer.load_state_dict(state["optimizer"])
+        except ValueError as exc:  # other parameters trained (another --freeze): the moments belong to those
+            return f"resumed at step {self.step} with a fresh optimiser ({state_path.name} holds other parameters: {exc})"
         return f"resumed exactly at step {self.step}"
 
     def loader(self) -> Iterator[dict[str, Any]]:
@@ -267,8 +291,8 @@ class Trainer:
 
     def train_step(self, model: torch.nn.Module, batches: list[dict[str, Any]]) -> dict[str, Any]:
         """one optimiser step over `accumulate` micro-batches; a micro-batch whose frames all broke is skipped."""
-        for module in self.pipeline.learned_modules().values():
-            module.train()
+        for kind, module in self.pipeline.learned_modules().items():
+            module.train(kind not in self.frozen)  # a frozen stage keeps its BatchNorm statistics and no dropout
         for group in self.optimizer.param_groups:
             group["lr"] = learning_rate(self.config, self.step)
         self.optimizer.zero_grad(set_to_none=True)
