@@ -57,7 +57,7 @@ from i2pbench.protocol import Protocol
 from i2pbench.runs.runner import prepare
 from i2pbench.runs.upstream import UPSTREAM_KINDS, StoredUpstream
 from i2pbench.testing import check_component, check_declaration, registered_components
-from i2pbench.trace import Upstream
+from i2pbench.trace import FrameOutcome, Upstream
 from i2pbench.training.batching import BatchForward, prepare_stage
 from i2pbench.training.samples import collate_samples
 
@@ -247,14 +247,21 @@ def perfect_frustum_pipeline() -> Pipeline:
     return Pipeline(Combination({k: s.name for k, s in stages.items()}), stages, timeout_s=None)
 
 
-def test_a_pair_with_its_true_cell_is_a_true_match_judged_by_the_cell_not_by_eps_c():
+@pytest.fixture(scope="module")
+def perfect_frustum_run() -> tuple[Frame, Pipeline, FrameOutcome]:
+    """the toy frame through the perfect frustum pipeline, solved once for the tests that read it (the planar
+    solver's 52 local solves are most of their time)."""
+    frame, pipeline = toy_frame(), perfect_frustum_pipeline()
+    return frame, pipeline, pipeline.run(frame)
+
+
+def test_a_pair_with_its_true_cell_is_a_true_match_judged_by_the_cell_not_by_eps_c(perfect_frustum_run):
     """Perfect grid classification: every point inside the image paired with its own cell's centre. Each projects
     inside its cell, so within the half diagonal (64 / sqrt 2 = 45.25 px) of the centre the pairs carry, and every
     pair counts as true; judged by eps_c (3 px) only those within 3 px of a centre would (about pi 3^2 / 64^2 = 0.7%
     of them), and a trained grid + PnP's every success would read as chance. The radius survives the stored upstream,
     and a file written without it reads back as eps_c."""
-    frame = toy_frame()
-    outcome = perfect_frustum_pipeline().run(frame)
+    frame, _, outcome = perfect_frustum_run
     assert outcome.matches.radius_px == pytest.approx(45.2548, abs=1e-4)
     pairs = len(outcome.matches)
     assert pairs > 100 and true_matches(frame, outcome) == pairs
@@ -275,16 +282,14 @@ def test_a_radius_that_is_no_positive_number_of_pixels_is_refused(radius):
     check_matches(dataclasses.replace(matches, radius_px=45.25), 2, 3, "matcher 'x'")
 
 
-def test_perfect_frustum_scores_give_the_pose_and_the_stored_upstream_gives_it_again(tmp_path):
+def test_perfect_frustum_scores_give_the_pose_and_the_stored_upstream_gives_it_again(perfect_frustum_run, tmp_path):
     """Through the pipeline: cell centres, every point, perfect scores, the planar frustum solver. With every label
     honoured (cost 0), the poses the solver can end at are those that keep each point on its side of every face, so
     a border is pinned only to within the gap between the points beside it: 2,000 points over the scan's 5.3 sr
     (elevations +-25 deg) are 1 / sqrt(377 per sr) = 0.05 rad = 3 deg apart, whence the tolerance 2.5 deg and 0.75 m.
     Measured: 0.03 m, 0.12 deg here (seed 0); seeds 0-5 at most 0.35 m and 1.85 deg. The upstream stored as a run
     stores it (.npz) and read back re-solves to the very same pose."""
-    frame = toy_frame()
-    pipeline = perfect_frustum_pipeline()
-    outcome = pipeline.run(frame)
+    frame, pipeline, outcome = perfect_frustum_run
     assert outcome.failure is None and outcome.matches.frustum.sum() > 100
     errors = pose_errors(outcome.estimate.T, frame.T_gt)
     assert errors.rte_m < 0.75 and errors.geodesic_deg < 2.5
