@@ -1,10 +1,14 @@
 """`i2pbench train` as a user runs it: real KITTI frames, seeded, validated, and safe to point at an old checkpoint."""
 
 import json
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 
+import pytest
 import torch
+from conftest import SHARED_DATA
 
 from i2pbench.weights import load_checkpoint
 
@@ -27,11 +31,25 @@ def train(shared_data, tmp_path, out, *extra):
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600)
 
 
-def test_train_on_real_kitti_validates_without_extra_flags_and_the_seed_fixes_the_weights(shared_data, tmp_path):
-    a, b = tmp_path / "a.pt", tmp_path / "b.pt"
-    for out in (a, b):
-        done = train(shared_data, tmp_path, out)
-        assert done.returncode == 0, done.stderr
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> Path:
+    """one seeded training run (a.pt, its resume file, log and extractor cache), shared by the tests that compare
+    against it or try to resume it: each run is a fresh process that imports torch and builds the pipeline."""
+    if not SHARED_DATA.exists():
+        pytest.skip("../shared/data is not present")
+    where = tmp_path_factory.mktemp("trained")
+    done = train(SHARED_DATA, where, where / "a.pt")
+    assert done.returncode == 0, done.stderr
+    assert "effective batch 2" in done.stderr
+    return where
+
+
+def test_train_on_real_kitti_validates_without_extra_flags_and_the_seed_fixes_the_weights(
+    trained, shared_data, tmp_path
+):
+    a, b = trained / "a.pt", tmp_path / "b.pt"
+    done = train(shared_data, trained, b)  # a's cache: reading it back leaves the weights as they were
+    assert done.returncode == 0, done.stderr
     assert "effective batch 2" in done.stderr
     first, second = load_checkpoint(a), load_checkpoint(b)
     assert first.meta["steps"] == 2 and first.meta["validation"]["frames"] == 1  # val: sequence 26, held out
@@ -39,14 +57,14 @@ def test_train_on_real_kitti_validates_without_extra_flags_and_the_seed_fixes_th
     assert first.meta["trained_on"]["split"] == "train" and first.meta["trained_on"]["frames"] == 17  # sequence 04
     for kind, state in first.state.items():
         assert all(torch.equal(state[k], second.state[kind][k]) for k in state), kind
-    log = [json.loads(line) for line in (tmp_path / "a.pt.log.jsonl").read_text().splitlines()]
+    log = [json.loads(line) for line in (trained / "a.pt.log.jsonl").read_text().splitlines()]
     assert [r["step"] for r in log] == [1, 2] and all(0 <= r["data_wait"] <= 1 for r in log)
-    assert len(list((tmp_path / "cache").rglob("*.pt"))) >= 2  # extractor outputs and grouping kept on disk
+    assert len(list((trained / "cache").rglob("*.pt"))) >= 2  # extractor outputs and grouping kept on disk
 
 
-def test_resuming_with_other_stages_is_refused_and_the_checkpoint_is_kept(shared_data, tmp_path):
-    out = tmp_path / "w.pt"
-    assert train(shared_data, tmp_path, out).returncode == 0
+def test_resuming_with_other_stages_is_refused_and_the_checkpoint_is_kept(trained, shared_data, tmp_path):
+    shutil.copytree(trained, tmp_path, dirs_exist_ok=True)  # a.pt, its resume file, log and cache as the run left them
+    out = tmp_path / "a.pt"
     before = out.read_bytes()
     done = train(shared_data, tmp_path, out, "--exchanger", "none", "--steps", "3")
     assert done.returncode == 2 and "Traceback" not in done.stderr
