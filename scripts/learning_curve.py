@@ -96,11 +96,13 @@ def split_file_for(drives: int, work: Path) -> str:
 # name -> (arm it starts from, preset, extra train options)
 # aliked: frozen pretrained ALIKED image features at half resolution (a quarter of its full-resolution cost, which
 # this CPU could not afford), the other stages from scratch: no checkpoint fits them; mix: half the samples from the
-# synthetic train split; augment: image and scan randomisation per sample.
+# synthetic train split; augment: image and scan randomisation per sample; image-only: only the image branch
+# (encoder2d) is fine-tuned, the 3D encoder, exchanger and matcher stay the synthetic weights' (`--freeze`).
 LEVERS = {
     "aliked": ("scratch", "edgeregnet-aliked", ["--conf", "encoder2d.image_scale=0.5"]),
     "mix": ("synthetic", "default", ["--mix", "synthetic:train=0.5"]),
     "augment": ("synthetic", "default", ["--augment", "photometric,lidar-dropout"]),
+    "image-only": ("synthetic", "default", ["--freeze", "encoder3d,exchanger,matcher"]),
 }
 
 

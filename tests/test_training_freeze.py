@@ -23,7 +23,8 @@ SMALL = [  # EdgeRegNet shrunk so a step takes a fraction of a second; the CPU p
 def train(shared_data, tmp_path, out, steps, *extra) -> subprocess.CompletedProcess:
     cmd = [sys.executable, "-m", "i2pbench.cli", "train", "--dataset", "kitti", "--data-root",
            str(shared_data / "kitti_real"), "--out", str(out), "--steps", str(steps), "--val-split", "none",
-           "--lr", "1e-2", "--cache-dir", str(tmp_path / "cache"), "--threads", "1", "--quiet", *SMALL, *extra]  # fmt: skip
+           "--lr", "1e-2", "--cache-dir", str(tmp_path / "cache"), "--threads", "1", "--quiet",
+           *SMALL, *extra]  # fmt: skip
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600)
 
 
