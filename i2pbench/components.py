@@ -242,6 +242,7 @@ class StageKind:
     output: str  # the `StageInputs` field its output becomes ("features.desc2d": one side; "": none reads it)
     contract: str  # the function of i2pbench.contracts that checks its output before anything reads it
     required: bool = False  # a combination without it is refused
+    learnable: bool = False  # its components may hold trained parameters (`learned.LearnedComponent`)
 
     @property
     def kind(self) -> str:
@@ -254,15 +255,18 @@ STAGES: dict[str, StageKind] = {
         StageKind(Extractor2D, "register_extractors_2d", ("--extractor", "--extractor2d"), (), "kp2d", "keypoints2d",
                   required=True),
         StageKind(Extractor3D, "register_extractors_3d", ("--extractor3d",), (), "kp3d", "keypoints3d", required=True),
-        StageKind(Encoder2D, "register_encoders_2d", ("--encoder2d",), ("kp2d",), "features.desc2d", "descriptors2d"),
-        StageKind(Encoder3D, "register_encoders_3d", ("--encoder3d",), ("kp3d",), "features.desc3d", "descriptors3d"),
+        StageKind(Encoder2D, "register_encoders_2d", ("--encoder2d",), ("kp2d",), "features.desc2d", "descriptors2d",
+                  learnable=True),
+        StageKind(Encoder3D, "register_encoders_3d", ("--encoder3d",), ("kp3d",), "features.desc3d", "descriptors3d",
+                  learnable=True),
         StageKind(Exchanger, "register_exchangers", ("--exchanger",), ("kp2d", "kp3d", "features"), "features",
-                  "features"),
+                  "features", learnable=True),
         StageKind(Matcher, "register_matchers", ("--matcher",), ("kp2d", "kp3d", "features"), "matches", "matches",
-                  required=True),
+                  required=True, learnable=True),
         StageKind(PoseSolver, "register_pose_solvers", ("--solver",), ("kp2d", "kp3d", "matches"), "", "estimate",
                   required=True),
     )
 }  # fmt: skip
 STAGE_BASES: dict[str, type[Component]] = {kind: spec.base for kind, spec in STAGES.items()}
 STAGE_ORDER: tuple[str, ...] = tuple(STAGES)
+LEARNABLE_KINDS: tuple[str, ...] = tuple(kind for kind, spec in STAGES.items() if spec.learnable)

@@ -29,6 +29,9 @@ class LearnedComponent(Component, torch.nn.Module):
     # config keys that only steer inference (score thresholds, filters): a checkpoint fits whatever their values, so
     # `--conf matcher.filter_threshold=0.2` can sweep them over shipped weights
     runtime_keys: ClassVar[frozenset[str]] = frozenset()
+    # "network@sha8" of pretrained weights the stage starts from (not from the checkpoint), "" for none: on every
+    # row it runs in (`Pipeline.weights_identity`), since those weights shape the results as much as the checkpoint
+    pretrained_identity: str = ""
 
     def __init__(self, conf: Mapping[str, Any] | None = None) -> None:
         torch.nn.Module.__init__(self)

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .components import STAGE_ORDER
+from .components import LEARNABLE_KINDS, STAGE_ORDER
 from .errors import PluginError
 
 Confs = Mapping[str, Mapping[str, Any]]  # stage kind -> config overrides
@@ -162,7 +162,7 @@ class Method:
         }
 
 
-OWN_KINDS = ("encoder2d", "encoder3d", "exchanger", "matcher")  # the stages a method's rows are recognised by
+OWN_KINDS = LEARNABLE_KINDS  # the stages a method's rows are recognised by (encoders, exchanger, matcher)
 
 
 def method_of(methods: Mapping[str, Method], owner: Mapping[str, str], stages: Mapping[str, str]) -> str:

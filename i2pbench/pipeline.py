@@ -113,7 +113,7 @@ class _Progress:
 def pretrained_sources(learned: Mapping[str, Any]) -> list[str]:
     """`kind: identity` of each learned stage that starts from pretrained weights (its `pretrained_identity`, e.g.
     `encoder2d: aliked-n16@1a2b3c4d`)."""
-    return [f"{kind}: {c.pretrained_identity}" for kind, c in learned.items() if getattr(c, "pretrained_identity", "")]
+    return [f"{kind}: {c.pretrained_identity}" for kind, c in learned.items() if c.pretrained_identity]
 
 
 def untrained_identity(learned: Mapping[str, Any]) -> str:

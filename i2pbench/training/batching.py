@@ -15,11 +15,11 @@ import torch
 import torch.nn.functional as F
 
 from ..calling import StageInputs, call_stage
-from ..components import Component
+from ..components import LEARNABLE_KINDS, Component
 from ..learned import BatchedStage
 from ..types import Features, Frame, Keypoints2D, Keypoints3D
 
-LEARNED_KINDS = ("encoder2d", "encoder3d", "exchanger", "matcher")
+LEARNED_KINDS = LEARNABLE_KINDS  # the stages a batch runs through, in data-flow order
 PER_FRAME = "_per_frame"  # the prepared entry of a stage without `prepare`: (frame, kp2d, kp3d), collated as a list
 
 

@@ -257,7 +257,8 @@ class Trainer:
         try:
             self.optimizer.load_state_dict(state["optimizer"])
         except ValueError as exc:  # other parameters trained (another --freeze): the moments belong to those
-            return f"resumed at step {self.step} with a fresh optimiser ({state_path.name} holds other parameters: {exc})"
+            held = f"{state_path.name} holds other parameters: {exc}"
+            return f"resumed at step {self.step} with a fresh optimiser ({held})"
         return f"resumed exactly at step {self.step}"
 
     def loader(self) -> Iterator[dict[str, Any]]:
