@@ -3,7 +3,9 @@ out across several datasets' leaderboards, finding each row by its label in the 
 a number for a row a board lacks."""
 
 import math
+import os
 import types
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -133,3 +135,27 @@ def test_a_label_with_rows_of_two_weights_in_one_board_is_refused_not_guessed():
     board = _board([{"combination": "a > b", "weights": w, ACC: 10.0} for w in ("one@1", "two@2")])
     with pytest.raises(I2PBenchError, match=r"leaderboard of KITTI has 2 rows 'a > b' \(one@1, two@2\)"):
         paper_table.build(ROWS[:1], {"KITTI": board})
+
+
+@pytest.mark.parametrize("kind", ["device", "folder"])
+def test_table_out_naming_a_device_or_folder_is_refused_before_reading_a_board(tmp_path, capsys, kind):
+    out = os.devnull if kind == "device" else str(tmp_path)
+    assert main(["table", "--preset", "classic-oracle", f"KITTI={tmp_path / 'absent.csv'}", "--out", out]) == 2
+    err = capsys.readouterr().err
+    said = "is not a regular file" if kind == "device" else "is a folder; --out is a file stem"
+    assert f"--out {out} {said}" in err and "absent.csv" not in err  # refused before the missing board is read
+    assert not Path(f"{os.devnull}.csv").exists()
+
+
+def test_table_out_ending_in_csv_is_taken_as_the_stem(tmp_path, capsys):
+    label = "lsd > depth+reflectance > oracle > epnp-ransac"
+    write(
+        _board([{"combination": label, ACC: 100.0, CHANCE: 0, ACC_SKILL: 100.0, TRUE_MATCHES: 110.0}]), tmp_path / "k"
+    )
+    assert (
+        main(["table", "--preset", "classic-oracle", f"KITTI={tmp_path / 'k.csv'}", "--out", str(tmp_path / "t.csv")])
+        == 0
+    )
+    stem = tmp_path / "t"
+    assert f"--out {stem}.csv is taken as the stem {stem}: writing {stem}.csv, {stem}.md\n" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.glob("t*")) == ["t.csv", "t.md"]

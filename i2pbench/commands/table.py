@@ -29,10 +29,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..boards import paper_table
+    from ..boards.out_stem import board_stem
     from ..boards.regression_gate import read_board
     from ..errors import I2PBenchError, os_problem
     from ..plugins import default_registry
 
+    args.out = board_stem(args.out, (".csv", ".md"))  # a device, pipe or folder refused before any board is read
     names = [name for name, _ in args.boards]
     if len(set(names)) != len(names):
         raise I2PBenchError(f"table: a column group's name is given twice ({', '.join(names)})")
