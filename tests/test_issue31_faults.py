@@ -365,8 +365,9 @@ def test_quiet_silences_the_written_lines_of_run_and_report(stored, tmp_path):
     assert "written: " not in quiet.stderr and (tmp_path / "q.csv").is_file()
     assert "| kitti | all | canny > depth > oracle > epnp-ransac |" in quiet.stdout  # the board itself still shows
     report = ["report", str(runs / "kitti-all"), "--out", str(tmp_path / "r.html")]
-    assert "written: " in i2pbench(*report, cwd=tmp_path).stderr
-    assert "written: " not in i2pbench(*report, "--quiet", cwd=tmp_path).stderr
+    assert "written: " in i2pbench(*report, "--overlays", "0", cwd=tmp_path).stderr  # the line, not the pictures
+    quiet = i2pbench(*report, "--quiet", cwd=tmp_path)  # with its overlays: neither their bar nor the line shows
+    assert quiet.returncode == 0 and "written: " not in quiet.stderr and "overlay" not in quiet.stderr
 
 
 # ---- the suite's own warnings ----
