@@ -19,6 +19,14 @@ SMALL_CONFS = {
         "head_mlp": (32,),
         "groups": 4,
     },
+    ("encoder2d", "superpoint-official"): {"canvas": (160, 96)},  # the kit's synthetic frame, not KITTI's 1250 x 376
+    ("encoder3d", "pointnet2-official"): {
+        "descriptor_dim": 32,
+        "num_points": 1024,
+        "sa1": {"npoint": 256, "radius": 0.1, "nsample": 16, "mlp": (16, 16, 32)},
+        "sa2": {"npoint": 64, "radius": 0.2, "nsample": 16, "mlp": (32, 32, 64)},
+        "fp_mlp": (32, 32),
+    },
     ("exchanger", "attention"): {"descriptor_dim": 32, "num_blocks": 1, "num_heads": 2, "pe_mlp": (16, 32)},
     ("matcher", "lightglue"): {"descriptor_dim": 32},
 }
