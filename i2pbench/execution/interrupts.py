@@ -8,13 +8,16 @@ installed a SIGINT handler of its own, it is left alone and a KeyboardInterrupt 
 
 A run stopped by Ctrl-C prints no traceback: its workers are stopped (the executors terminate their processes and
 raise `Interrupted`), every finished frame stays in the store, and `run` says what was kept
-(`i2pbench.commands.run_notes.stopped`); the same command then resumes from the store.
+(`i2pbench.commands.run_notes.stopped`); the same command then resumes from the store. Worker processes start with
+SIGINT held (`sigint_held`, `ignore_held_sigint`), so a Ctrl-C while they import is not a traceback of theirs.
 """
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import threading
+from collections.abc import Iterator
 from types import FrameType
 from typing import Any
 
@@ -50,3 +53,33 @@ class Interrupted(KeyboardInterrupt):
     def __init__(self, records: list[dict[str, Any]]) -> None:
         super().__init__()
         self.records = records
+
+
+@contextlib.contextmanager
+def sigint_held() -> Iterator[None]:
+    """SIGINT blocked in this thread while it starts worker processes. A child inherits the blocked mask (across
+    fork and exec), so a Ctrl-C that reaches it while it starts up (the terminal signals the whole process group)
+    stays pending until its initializer ignores SIGINT (`ignore_held_sigint`), instead of raising
+    KeyboardInterrupt in the middle of its imports with a traceback. Here a Ctrl-C that came meanwhile is taken
+    on leaving."""
+    if not hasattr(signal, "pthread_sigmask"):  # not on Windows: there a worker takes Ctrl-C as before
+        yield
+        return
+    # multiprocessing's resource tracker, started with the first spawned process, unblocks SIGINT in the starting
+    # thread once it runs (CPython's resource_tracker.ensure_running): started first, it leaves the hold alone
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
+def ignore_held_sigint() -> None:
+    """In a worker started under `sigint_held`: Ctrl-C is the driver's (it stops the run and ends its workers), so
+    ignore SIGINT, then unblock it; one that came during start-up is dropped."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})

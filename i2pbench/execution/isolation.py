@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 from ..errors import I2PBenchError, IsolationError
 from ..pipeline import Pipeline
 from ..trace import FrameOutcome, StageRecord
+from .interrupts import ignore_held_sigint, sigint_held
 from .lifeline import exit_with_parent
 from .timeout import StageTimeout
 
@@ -100,7 +101,8 @@ class _Child:
         context = multiprocessing.get_context("spawn")  # a fresh interpreter: no lock or CUDA state from this one
         self.conn, theirs = context.Pipe()
         self.process = context.Process(target=_serve, args=(theirs,), name="i2pbench-isolated", daemon=True)
-        self.process.start()
+        with sigint_held():  # a Ctrl-C during its start-up is not a traceback of its own
+            self.process.start()
         theirs.close()  # so that the child's death reads as end-of-file here
         self.owner = os.getpid()
         self.holds: tuple[str, Any] | None = None  # (token, fingerprint) of the pipeline it has
@@ -184,7 +186,7 @@ def _tensors(module: torch.nn.Module) -> itertools.chain[torch.Tensor]:
 
 def _serve(conn: Connection) -> None:
     """The child's loop: take a pipeline, then frames, until the parent closes the pipe or dies."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it stops the run and kills this process
+    ignore_held_sigint()  # Ctrl-C is the parent's: it stops the run and kills this process
     exit_with_parent()
     pipeline = None
     while True:

@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 import multiprocessing
 import os
-import signal
 import sys
 from collections.abc import Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -29,7 +28,7 @@ import pandas as pd
 
 from ..data.base import Dataset
 from ..errors import I2PBenchError
-from ..execution.interrupts import Interrupted
+from ..execution.interrupts import Interrupted, ignore_held_sigint, sigint_held
 from ..execution.lifeline import exit_with_parent
 from ..pipeline import Combination
 from ..plugins import Registry
@@ -239,7 +238,7 @@ _WORKER: Worker | None = None  # a pool process's worker, built once by its init
 def _init_pool_worker(work: Work, store_root: str, threads: int, device: str | None) -> None:
     global _WORKER
     exit_with_parent()  # else a killed driver leaves its workers blocked on the task queue, weights in memory
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's: it stops the run and terminates us
+    ignore_held_sigint()  # Ctrl-C is the driver's: it stops the run and terminates us
     _WORKER = Worker(work, ResultsStore(store_root), threads, device)
 
 
@@ -276,8 +275,10 @@ class LocalExecutor:
     def run(self, tasks: Sequence[Task], deliver: Deliver) -> None:
         """Deliver each chunk as it finishes; a dead worker process ends the run (finished frames stay stored)."""
         assert self._pool is not None, "start() first"
-        pending: set[Future[list[Result]]] = {self._pool.submit(_run_pool_task, task) for task in tasks}
+        pending: set[Future[list[Result]]] = set()
         try:
+            with sigint_held():  # the pool starts its processes on these submits
+                pending = {self._pool.submit(_run_pool_task, task) for task in tasks}
             while pending:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for future in done:

@@ -1,0 +1,47 @@
+"""A Ctrl-C while worker processes start up: held until the worker ignores it, not a traceback of the worker's."""
+
+import multiprocessing
+import os
+import signal
+import time
+
+import pytest
+
+from i2pbench.execution.interrupts import ignore_held_sigint, sigint_held
+
+pytestmark = pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="POSIX signal masks")
+
+
+def _start_and_interrupt(held: bool) -> int:
+    """the exit code of a spawned process whose entry point is `ignore_held_sigint`, sent SIGINT at once, while its
+    interpreter is still starting (a spawn takes tens of milliseconds before any of our code runs there)."""
+    process = multiprocessing.get_context("spawn").Process(target=ignore_held_sigint)
+    if held:
+        with sigint_held():
+            process.start()
+    else:
+        process.start()
+    os.kill(process.pid, signal.SIGINT)
+    process.join(60)
+    return process.exitcode
+
+
+def test_a_worker_started_with_sigint_held_survives_a_ctrl_c_during_its_start_up():
+    assert _start_and_interrupt(held=True) == 0
+
+
+def test_without_it_the_same_ctrl_c_kills_the_starting_worker():
+    # the failure the hold prevents: KeyboardInterrupt inside the worker's imports (exit 1, with a traceback), or the
+    # default action before Python's handler is installed (killed by SIGINT, -2)
+    assert _start_and_interrupt(held=False) in (1, -signal.SIGINT)
+
+
+def test_a_ctrl_c_to_the_starting_thread_itself_is_taken_when_the_hold_ends():
+    reached = False
+    with pytest.raises(KeyboardInterrupt):
+        with sigint_held():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)  # blocked: nothing is raised here
+            reached = True
+    assert reached
+    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, set())  # the mask is as before
