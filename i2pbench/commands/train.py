@@ -234,6 +234,9 @@ def _init_2d(pipeline, path: str) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_out(Path(args.out), args.force)  # a refused --out or --mix is said before torch loads (seconds)
+    mix_specs, val_spec = _source_specs(args)
+
     import torch
 
     from ..execution.devices import resolve_device
@@ -243,8 +246,6 @@ def run(args: argparse.Namespace) -> int:
     from ..runs.environment import fix_threads
     from ..training.trainer import Trainer, steps_for_epochs, training_meta
 
-    check_out(Path(args.out), args.force)
-    mix_specs, val_spec = _source_specs(args)
     device = resolve_device(args.device)
     fix_threads(args.threads)
     registry = default_registry()
