@@ -19,10 +19,10 @@ SMALL_CONFS = {
         "head_mlp": (32,),
         "groups": 4,
     },
-    ("encoder2d", "superpoint-official"): {"canvas": (160, 96)},  # the kit's synthetic frame, not KITTI's 1250 x 376
-    ("encoder3d", "pointnet2-official"): {
+    # the kit's 160 x 96 synthetic frame pasted on a canvas a little larger, not KITTI's 1250 x 376 (the VGG is fixed)
+    ("encoder2d", "superpoint-official"): {"canvas": (192, 128)},
+    ("encoder3d", "pointnet2-official"): {  # num_points as shipped: the whole synthetic scan, as before
         "descriptor_dim": 32,
-        "num_points": 1024,
         "sa1": {"npoint": 256, "radius": 0.1, "nsample": 16, "mlp": (16, 16, 32)},
         "sa2": {"npoint": 64, "radius": 0.2, "nsample": 16, "mlp": (32, 32, 64)},
         "fp_mlp": (32, 32),
