@@ -46,6 +46,11 @@ def _curve_module():
 
 lc = _curve_module()
 PROGRESS = "progress.jsonl"
+LABELS = {  # the plot's names of the runs in docs/edgeregnet.md
+    "plain": "no augmentation",
+    "augment": "photometric + LiDAR dropout",
+    "image-only": "image branch only (--freeze)",
+}
 
 
 def checkpoint_step(path: Path) -> int:
@@ -117,10 +122,24 @@ def table(works: list[Path], curve_csv: Path | None) -> pd.DataFrame:
         first = curve[(curve["arm"] == "synthetic") & (curve["drives"] == lc.ALL_DRIVES) & (curve["lever"] == "")]
         first = first.assign(name="plain", lever="", step=first["steps"] + lc.SHIPPED_STEPS)
         frame = pd.concat([first[[c for c in frame.columns if c in first]], frame], ignore_index=True)
-    keep = ["name", "lever", "step", "val_P", "val_fov", "acc_pct", "chance", "acc_true_pct", "true_matches_median",
-            "true_matches_total", "inlier_pct", "weights", "train_s"]  # fmt: skip
-    frame = frame[frame["step"] > lc.SHIPPED_STEPS]  # a run's first record before any real step is the shipped row
+    frame["train_P"] = [train_loss(works, name, step) for name, step in zip(frame["name"], frame["step"], strict=True)]
+    keep = ["name", "lever", "step", "real_steps", "val_P", "train_P", "val_fov", "acc_pct", "chance", "acc_true_pct",
+            "true_matches_median", "true_matches_total", "inlier_pct", "weights", "train_s"]  # fmt: skip
+    frame = frame.assign(real_steps=frame["step"] - lc.SHIPPED_STEPS)
+    frame = frame[frame["real_steps"] > 0]  # a run's first record, before any real step, is the shipped row
     return frame[[c for c in keep if c in frame]].sort_values(["name", "step"]).reset_index(drop=True)
+
+
+def train_loss(works: list[Path], name: str, step: int, last: int = 50) -> float:
+    """the matching loss L_P on the training drives over the `last` steps up to `step`, from the run's step log
+    (NaN where no work holds it): what the val loss is set against to see fitting."""
+    for work in works:
+        log = Path(f"{lc.checkpoint(name, work)}.log.jsonl")
+        if log.exists():
+            steps = pd.read_json(log, lines=True)
+            window = steps[(steps["step"] > step - last) & (steps["step"] <= step)]
+            return round(float(window["P"].mean()), 2) if len(window) else math.nan
+    return math.nan
 
 
 def plot(frame: pd.DataFrame, png: Path) -> None:
@@ -129,11 +148,14 @@ def plot(frame: pd.DataFrame, png: Path) -> None:
 
     fig = Figure(figsize=(6.4, 3.8), dpi=110)
     ax = fig.subplots()
-    for name, rows in frame.groupby("name"):
-        ax.plot(rows["step"] - lc.SHIPPED_STEPS, rows["val_P"], marker="o", label=name)
+    for (name, rows), colour in zip(frame.groupby("name"), ("C0", "C1", "C2", "C3", "C4", "C5"), strict=False):
+        label = LABELS.get(name, name)
+        ax.plot(rows["real_steps"], rows["val_P"], marker="o", color=colour, label=f"{label}: val drives")
+        train = {"linestyle": ":", "marker": "x", "color": colour, "label": f"{label}: train drives"}
+        ax.plot(rows["real_steps"], rows["train_P"], **train)
     ax.axhline(2 * math.log(2048), color="red", linestyle="--", linewidth=0.8, label="chance, 2 ln 2048")
     ax.set_xlabel("optimiser steps on the 13 train drives (from the shipped synthetic weights)")
-    ax.set_ylabel("matching loss L_P on the 5 val drives")
+    ax.set_ylabel("matching loss L_P (train: mean of 50 steps)")
     ax.legend(fontsize=7)
     fig.suptitle("EdgeRegNet CPU size, long runs; shipped weights: L_P 36.9", fontsize=9)
     fig.tight_layout()
