@@ -239,6 +239,21 @@ def _frames(sequence: str, data_root: str) -> int:
 def val_loss(weights: Path, preset: str, confs: dict[str, dict], data_root: str) -> dict[str, float]:
     """the matcher's loss terms (L_P, the matching loss; chance is 2 ln 2048 = 15.2) of `weights` averaged over the
     val frames at protocol seed 0: a continuous signal where Acc. and the true-matches median are 0."""
+    terms = [t for _, t in frame_losses(weights, preset, confs, data_root)]
+    return {f"val_{k}": round(sum(t[k] for t in terms) / len(terms), 2) for k in ("P", "fov")}
+
+
+def frame_losses(
+    weights: Path,
+    preset: str,
+    confs: dict[str, dict],
+    data_root: str,
+    split: str = "val",
+    fold: str | None = None,
+    split_file: str | None = None,
+) -> list[tuple[str, dict[str, float]]]:
+    """(frame id, the matcher's loss terms) of `weights` on each frame of a kitti-drives split (of fold K/N when
+    `fold` is given), protocol seed 0, through the pipeline as `run` takes it."""
     import torch
 
     from i2pbench.data.kitti_drives import KittiDrives
@@ -253,14 +268,18 @@ def val_loss(weights: Path, preset: str, confs: dict[str, dict], data_root: str)
     names = {k: v for k, v in row.items() if k not in ("confs", "variant")}
     merged = {kind: {**row["confs"].get(kind, {}), **confs.get(kind, {})} for kind in {*row["confs"], *confs}}
     (job,) = prepare(registry, [Combination(names, merged, row["variant"])], str(weights))
-    dataset, protocol, terms = KittiDrives("val", {"root": data_root}), Protocol(), []
+    conf = {"root": data_root, **({"fold": fold} if fold else {}), **({"split_file": split_file} if split_file else {})}
+    dataset = KittiDrives(split, conf)
+    protocol, out = Protocol(), []
     with torch.no_grad():
         for frame_id in dataset.frame_ids():
             frame = protocol.apply(dataset.load(frame_id))
-            out = {r.kind: r.output for r in job.pipeline.run(frame).records}
+            stages = {r.kind: r.output for r in job.pipeline.run(frame).records}
             matcher = job.pipeline.stages["matcher"]
-            terms.append(matcher.loss(frame, out["extractor2d"], out["extractor3d"], out["exchanger"])[1])
-    return {f"val_{k}": round(sum(t[k] for t in terms) / len(terms), 2) for k in ("P", "fov")}
+            out.append(
+                (frame_id, matcher.loss(frame, stages["extractor2d"], stages["extractor3d"], stages["exchanger"])[1])
+            )
+    return out
 
 
 PANELS = (  # column, axis label, the issue's target or a reference line, its name
