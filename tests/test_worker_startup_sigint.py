@@ -12,6 +12,15 @@ from i2pbench.execution.interrupts import ignore_held_sigint, sigint_held
 pytestmark = pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="POSIX signal masks")
 
 
+@pytest.fixture(autouse=True)
+def sigint_as_at_a_terminal():
+    """Python's own SIGINT handler, as at a terminal: a suite started as a background job inherits SIGINT ignored,
+    and an ignored signal stays ignored in the processes it starts, which would hide what these tests look at."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
 def _start_and_interrupt(held: bool) -> int:
     """the exit code of a spawned process whose entry point is `ignore_held_sigint`, sent SIGINT at once, while its
     interpreter is still starting (a spawn takes tens of milliseconds before any of our code runs there)."""
