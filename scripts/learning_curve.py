@@ -98,11 +98,15 @@ def split_file_for(drives: int, work: Path) -> str:
 # this CPU could not afford), the other stages from scratch: no checkpoint fits them; mix: half the samples from the
 # synthetic train split; augment: image and scan randomisation per sample; image-only: only the image branch
 # (encoder2d) is fine-tuned, the 3D encoder, exchanger and matcher stay the synthetic weights' (`--freeze`).
+# keep-image: the converse, the image branch kept as the synthetic weights have it; low-lr: a third of the recipe's
+# learning rate.
 LEVERS = {
     "aliked": ("scratch", "edgeregnet-aliked", ["--conf", "encoder2d.image_scale=0.5"]),
     "mix": ("synthetic", "default", ["--mix", "synthetic:train=0.5"]),
     "augment": ("synthetic", "default", ["--augment", "photometric,lidar-dropout"]),
     "image-only": ("synthetic", "default", ["--freeze", "encoder3d,exchanger,matcher"]),
+    "keep-image": ("synthetic", "default", ["--freeze", "encoder2d"]),
+    "low-lr": ("synthetic", "default", ["--lr", "3e-5"]),  # after the recipe's --lr: the last one counts
 }
 
 

@@ -50,6 +50,8 @@ LABELS = {  # the plot's names of the runs in docs/edgeregnet.md
     "plain": "no augmentation",
     "augment": "photometric + LiDAR dropout",
     "image-only": "image branch only (--freeze)",
+    "keep-image": "image branch kept (--freeze encoder2d)",
+    "low-lr": "lr 3e-5",
 }
 
 
