@@ -148,7 +148,7 @@ def plot(frame: pd.DataFrame, png: Path) -> None:
     """val L_P against the real steps, one line per run, chance and the shipped weights' value marked."""
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(6.4, 3.8), dpi=110)
+    fig = Figure(figsize=(9.6, 4.0), dpi=110)
     ax = fig.subplots()
     for (name, rows), colour in zip(frame.groupby("name"), ("C0", "C1", "C2", "C3", "C4", "C5"), strict=False):
         label = LABELS.get(name, name)
@@ -158,7 +158,7 @@ def plot(frame: pd.DataFrame, png: Path) -> None:
     ax.axhline(2 * math.log(2048), color="red", linestyle="--", linewidth=0.8, label="chance, 2 ln 2048")
     ax.set_xlabel("optimiser steps on the 13 train drives (from the shipped synthetic weights)")
     ax.set_ylabel("matching loss L_P (train: mean of 50 steps)")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the axes, off the lines
     fig.suptitle("EdgeRegNet CPU size, long runs; shipped weights: L_P 36.9", fontsize=9)
     fig.tight_layout()
     png.parent.mkdir(parents=True, exist_ok=True)
