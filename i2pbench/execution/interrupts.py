@@ -60,8 +60,9 @@ def sigint_held() -> Iterator[None]:
     """SIGINT blocked in this thread while it starts worker processes. A child inherits the blocked mask (across
     fork and exec), so a Ctrl-C that reaches it while it starts up (the terminal signals the whole process group)
     stays pending until its initializer ignores SIGINT (`ignore_held_sigint`), instead of raising
-    KeyboardInterrupt in the middle of its imports with a traceback. Here a Ctrl-C that came meanwhile is taken
-    on leaving."""
+    KeyboardInterrupt in the middle of its imports with a traceback. Here, a SIGINT handed to this thread meanwhile
+    is taken on leaving; one the kernel hands to another thread of this process is raised at once, as before (the
+    executor then stops the workers it has started)."""
     if not hasattr(signal, "pthread_sigmask"):  # not on Windows: there a worker takes Ctrl-C as before
         yield
         return
