@@ -16,7 +16,6 @@ scene-bootstrap interval): the signal that still moves where no frame is registe
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
 from pathlib import Path
 
@@ -62,9 +61,8 @@ def main(argv: list[str] | None = None) -> int:
 def pooled_loss(args: argparse.Namespace, scene_of) -> tuple[float, float, float]:
     """the mean L_P over every fold's test frames, each fold's from its own weights, and its scene-bootstrap
     interval (scripts/learning_curve.py computes each frame's loss terms)."""
-    spec = importlib.util.spec_from_file_location("learning_curve", Path(__file__).with_name("learning_curve.py"))
-    curve = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(curve)
+    import learning_curve as curve  # scripts/ is on the path of a script
+
     frames, losses = [], []
     for k in range(1, args.folds + 1):
         weights = Path(args.loss.format(k=k))

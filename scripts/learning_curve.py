@@ -39,6 +39,7 @@ import shutil
 import subprocess
 import sys
 from argparse import Namespace
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 
@@ -350,16 +351,23 @@ def main(argv: list[str] | None = None) -> int:
             list(pool.map(lambda task: train_and_measure(*task[:3], args, *task[3:]), tasks(args)))
     result = pd.concat([table(work, args) for work in [args.work, *args.also]], ignore_index=True)
     result = result.drop_duplicates(["arm", "lever", "drives", "steps"])  # the shipped row once
+    write_table(result, args, plot)
+    return 0
+
+
+def write_table(result: pd.DataFrame, args: Namespace, draw: Callable[[pd.DataFrame, Path], None]) -> None:
+    """print the table as Markdown, and write it where --csv, --md and --png ask (the plot by `draw`)."""
     text = to_markdown(result, list(result.columns))
     print(text)
+    for path in (args.csv, args.md, args.png):
+        if path:
+            path.parent.mkdir(parents=True, exist_ok=True)
     if args.csv:
-        args.csv.parent.mkdir(parents=True, exist_ok=True)
         result.to_csv(args.csv, index=False)
     if args.md:
         args.md.write_text(text + "\n", encoding="utf-8")
     if args.png:
-        plot(result, args.png)
-    return 0
+        draw(result, args.png)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,6 @@ from a copy of the shipped synthetic weights. Every output stays under --work; t
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import math
 import shutil
@@ -31,20 +30,9 @@ import time
 from argparse import Namespace
 from pathlib import Path
 
+import learning_curve as lc  # its recipe, scoring and levers: scripts/ is on the path of a script
 import pandas as pd
 
-SCRIPTS = Path(__file__).resolve().parent
-
-
-def _curve_module():
-    """scripts/learning_curve.py, whose recipe, scoring and levers these runs share."""
-    spec = importlib.util.spec_from_file_location("learning_curve", SCRIPTS / "learning_curve.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-lc = _curve_module()
 PROGRESS = "progress.jsonl"
 LABELS = {  # the plot's names of the runs in docs/edgeregnet.md
     "plain": "no augmentation",
@@ -188,15 +176,7 @@ def main(argv: list[str] | None = None) -> int:
             p.error("training needs --work, --name and --until")
         train_chunks(args)
         return 0
-    result = table(args.table, args.curve)
-    text = lc.to_markdown(result, list(result.columns))
-    print(text)
-    if args.csv:
-        result.to_csv(args.csv, index=False)
-    if args.md:
-        args.md.write_text(text + "\n", encoding="utf-8")
-    if args.png:
-        plot(result, args.png)
+    lc.write_table(table(args.table, args.curve), args, plot)
     return 0
 
 

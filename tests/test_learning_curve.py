@@ -1,26 +1,14 @@
 """The learning curve's runs (scripts/learning_curve.py): nested drive subsets that keep val and test, and arms
 that differ only in their starting weights."""
 
-import importlib.util
 from argparse import Namespace
-from pathlib import Path
 
-import pytest
+import learning_curve as curve  # scripts/ is on pytest's path, as on a script's
 
 from i2pbench.data.kitti_drives import DEFAULT_SPLIT_FILE, load_split_file
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "learning_curve.py"
 
-
-@pytest.fixture(scope="module")
-def curve():
-    spec = importlib.util.spec_from_file_location("learning_curve", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_drive_subsets_are_nested_prefixes_of_the_train_list_with_the_files_val_and_test(curve, tmp_path):
+def test_drive_subsets_are_nested_prefixes_of_the_train_list_with_the_files_val_and_test(tmp_path):
     committed = load_split_file(DEFAULT_SPLIT_FILE)
     train = committed.splits["train"]
     assert curve.split_file_for(13, tmp_path) == DEFAULT_SPLIT_FILE  # all drives: the committed file itself
@@ -36,7 +24,7 @@ def test_drive_subsets_are_nested_prefixes_of_the_train_list_with_the_files_val_
     )  # a place two folders share trains on both of its sequences or on neither
 
 
-def test_the_arms_differ_only_in_their_starting_weights_and_step_count(curve, tmp_path):
+def test_the_arms_differ_only_in_their_starting_weights_and_step_count(tmp_path):
     args = Namespace(work=tmp_path, steps=150, lr=1e-4, data_root="data")
     synthetic = curve.train_argv("synthetic-3", "synthetic", 3, args)
     scratch = curve.train_argv("scratch-3", "scratch", 3, args)

@@ -1,30 +1,18 @@
 """The long runs' bookkeeping (scripts/long_run.py): where chunks stop, and which points its table joins."""
 
-import importlib.util
 import json
-from pathlib import Path
 
+import long_run  # scripts/ is on pytest's path, as on a script's
 import pandas as pd
-import pytest
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "long_run.py"
 
 
-@pytest.fixture(scope="module")
-def long_run():
-    spec = importlib.util.spec_from_file_location("long_run", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_chunks_stop_at_the_next_multiple_and_never_past_the_end(long_run):
+def test_chunks_stop_at_the_next_multiple_and_never_past_the_end():
     assert long_run.next_stop(8500, 100, 9500) == 8600
     assert long_run.next_stop(8650, 100, 9500) == 8700  # a run stopped between chunks rejoins the grid
     assert long_run.next_stop(8600, 100, 8650) == 8650
 
 
-def test_the_table_joins_the_curves_13_drive_points_to_the_plain_run_and_drops_the_shipped_record(long_run, tmp_path):
+def test_the_table_joins_the_curves_13_drive_points_to_the_plain_run_and_drops_the_shipped_record(tmp_path):
     records = [
         {"name": "augment", "lever": "augment", "step": 100, "val_P": 36.9},  # the shipped weights, before a step
         {"name": "augment", "lever": "augment", "step": 8600, "val_P": 13.91},

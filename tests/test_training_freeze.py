@@ -6,25 +6,16 @@ import sys
 
 import pytest
 import torch
+from test_train_cli import TINY  # EdgeRegNet's CPU preset shrunk to train a step in well under a second
 
 from i2pbench.weights import load_checkpoint
-
-SMALL = [  # EdgeRegNet shrunk so a step takes a fraction of a second; the CPU preset's stages
-    "--conf", "extractor2d.max_keypoints=128", "--conf", "extractor3d.max_keypoints=128",
-    "--conf", "encoder2d.channels=[8,8,16,16]", "--conf", "encoder2d.head_channels=32",
-    "--conf", "encoder2d.descriptor_dim=32", "--conf", "encoder3d.descriptor_dim=32",
-    "--conf", "encoder3d.num_points=1024", "--conf", "encoder3d.sa1={npoint: 128, nsample: 8, mlp: [16, 16]}",
-    "--conf", "encoder3d.sa2={npoint: 32, nsample: 8, mlp: [32, 32]}", "--conf", "encoder3d.fp_mlp=[32]",
-    "--conf", "encoder3d.head_mlp=[32]", "--conf", "exchanger.descriptor_dim=32", "--conf", "exchanger.num_blocks=1",
-    "--conf", "exchanger.pe_mlp=[16]", "--conf", "matcher.descriptor_dim=32",
-]  # fmt: skip
 
 
 def train(shared_data, tmp_path, out, steps, *extra) -> subprocess.CompletedProcess:
     cmd = [sys.executable, "-m", "i2pbench.cli", "train", "--dataset", "kitti", "--data-root",
            str(shared_data / "kitti_real"), "--out", str(out), "--steps", str(steps), "--val-split", "none",
            "--lr", "1e-2", "--cache-dir", str(tmp_path / "cache"), "--threads", "1", "--quiet",
-           *SMALL, *extra]  # fmt: skip
+           *TINY, *extra]  # fmt: skip
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600)
 
 
