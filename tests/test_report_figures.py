@@ -144,7 +144,7 @@ def test_a_long_name_is_wrapped_after_its_stages_and_kept_whole():
 
 def test_numbers_are_written_with_two_decimals_and_grouped_thousands():
     assert [number(v) for v in (1001.849, 0.5, 12345.6, float("nan"), float("inf"))] == [
-        "1,001.85", "0.50", "12,345.60", "-", "-"
+        "1,001.85", "0.50", "12,345.60", "-", "inf"
     ]  # fmt: skip
     assert number(2444.9, "ms") == "2,444.90 ms"
     assert [tick(v) for v in (0.01, 0.1, 1.0, 10_000.0)] == ["0.01", "0.1", "1", "10,000"]

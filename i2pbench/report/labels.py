@@ -13,8 +13,9 @@ CHAR_PX = 6.5  # a generous width of one 8 pt character at the report's 100 dpi 
 
 
 def number(value: float, unit: str = "") -> str:
-    """`value` with two decimals and thousands grouped ("1,001.85"), "-" when it is missing."""
-    if value is None or not math.isfinite(value):
+    """`value` with two decimals and thousands grouped ("1,001.85"), "-" when it is missing (NaN), "inf" for a
+    failure's error."""
+    if value is None or math.isnan(value):
         return "-"
     return f"{value:,.2f}" + (f" {unit}" if unit else "")
 
