@@ -148,3 +148,10 @@ def test_numbers_are_written_with_two_decimals_and_grouped_thousands():
     ]  # fmt: skip
     assert number(2444.9, "ms") == "2,444.90 ms"
     assert [tick(v) for v in (0.01, 0.1, 1.0, 10_000.0)] == ["0.01", "0.1", "1", "10,000"]
+
+
+def test_a_board_without_stage_timings_still_draws_its_totals():
+    board = latency_board(DEFAULT_RUN)[["combination", "weights", LATENCY_MEDIAN]]
+    fig = curves.latency_bars(board, labels(DEFAULT_RUN))
+    texts = [t for t, _ in drawn_texts(fig)]
+    assert "1,001.85 ms" in texts and "extractor2d" not in texts  # no stage legend when no stage was timed

@@ -64,7 +64,7 @@ def _axes(fig: Figure, titles: tuple[str, str], xlabels: tuple[str, str], ylabel
 
 
 def _legend(fig: Figure, axes) -> None:
-    """Below both panels, one entry per row, each name wrapped to the figure's width."""
+    """Below both panels, one entry per row (names wrapped to the figure's width by `_legend_labels`)."""
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside lower center", ncol=1, fontsize=8, frameon=False)
 
@@ -161,14 +161,17 @@ def _totals(ax, total: np.ndarray) -> None:
 
 
 def _shares(ax, board: pd.DataFrame, kinds: list[str]) -> None:
-    stages = np.column_stack([board[stage_latency(k, "median")].fillna(0.0).to_numpy(float) for k in kinds] or [])
-    summed = stages.sum(axis=1) if kinds else np.zeros(len(board))
+    """Each stage's share of the row's summed stage medians, stacked in pipeline order."""
+    ax.set(xlabel="share of the summed stage medians (%)", xlim=(0, 100))
+    if not kinds:
+        return
+    stages = np.column_stack([board[stage_latency(k, "median")].fillna(0.0).to_numpy(float) for k in kinds])
+    summed = stages.sum(axis=1)
     left = np.zeros(len(board))
     for i, kind in enumerate(kinds):
         share = np.divide(100.0 * stages[:, i], summed, out=np.zeros(len(board)), where=summed > 0)
         ax.barh(range(len(board)), share, left=left, label=kind)
         left += share
-    ax.set(xlabel="share of the summed stage medians (%)", xlim=(0, 100))
 
 
 def png(fig: Figure, dpi: int = 100) -> bytes:
