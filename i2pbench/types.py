@@ -30,6 +30,9 @@ class SensorFrame:
     # [6] float64 (vx, vy, vz in m/s, wx, wy, wz in rad/s): the LiDAR's own velocity, in its frame, at the scan's
     # time; None when the dataset does not know it (corruptions needing it do not apply: docs/robustness.md)
     ego_motion: np.ndarray | None = None
+    # the frame's index in the peers' own dataset list, for a dataset in their preprocessed layout: under a peer
+    # card the protocol then builds the frame as their loader does for that index (i2pbench.protocol_peer)
+    draw_index: int | None = None
 
     @property
     def image_size(self) -> tuple[int, int]:
