@@ -1,6 +1,6 @@
-"""A peer card's frame built as the peers' own loaders build it, for a frame of their preprocessed layout.
+"""A peer card's frame built as the peers' own loaders build it, for a frame with their dataset index.
 
-CorrI2P's kitti_pc_img_dataloader.py:248-287,334-336 and CoFiI2P's data/kitti.py:262-309, for the dataset index
+CorrI2P's kitti_pc_img_dataloader.py:250-287,324-326,345 and CoFiI2P's data/kitti.py:259-320,379, for the dataset index
 `SensorFrame.draw_index`: the cloud taken into the camera frame (P's baseline @ Tr), Open3D's 0.1 m voxel grid there
 (reflectance averaged as their fake colour channel), `num_pc` points drawn by numpy's legacy generator
 (`np.random.choice` without replacement; fewer: every point, repeated, then the rest drawn), the test pose drawn by
@@ -9,13 +9,16 @@ applied to the cloud; the image resized x0.5 and centre-cropped, K with it. The 
 inv(P_random). Both generators are seeded as CoFiI2P seeds them, `SeedSequence([index]).generate_state(1)`; CorrI2P
 seeds nothing, and i2pbench uses CoFiI2P's seeding for both (a protocol seed s other than 0 seeds [index, s]).
 
-Where this departs from protocol_inputs' own resampling (used for every other dataset): the voxel grid is anchored
-in the camera frame, not the LiDAR's; voxels come in Open3D's order; the draws follow the dataset index, not
-(seed, dataset, frame id); the sampled points keep the draw's order.
+A raw KITTI scan (the `kitti` dataset) is first preprocessed as the layout's cloud was made (corri2p_export: 0.1 m
+grid in the LiDAR frame, 1-NN reflectance), so `--protocol corri2p` gives the same frames on the original layout as
+on its export. Where this departs from protocol_inputs' own resampling (used for every other dataset and card): the
+voxel grid is anchored in the camera frame, not the LiDAR's; voxels come in Open3D's order; the draws follow the
+dataset index, not (seed, dataset, frame id); the sampled points keep the draw's order.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import random
 
 import numpy as np
@@ -28,6 +31,12 @@ from .types import Frame, SensorFrame
 # and moved cloud are float32; CorrI2P's are float64 (kitti_pc_img_dataloader.py:40,56). A point on a voxel's face can
 # fall either side in the two, changing the grid and every draw after it, so each card follows its own loader.
 FLOAT32_CARDS = frozenset({"cofii2p"})
+LOADER_CARDS = frozenset({"corri2p", "cofii2p"})  # the cards whose loaders this module follows
+
+
+def follows_loader(protocol, sensor: SensorFrame) -> bool:
+    """Whether `protocol` builds this frame as its paper's loader does: a frame with a dataset index, a loader card."""
+    return sensor.draw_index is not None and protocol.name in LOADER_CARDS
 
 
 def seed_of(index: int, seed: int = 0) -> int:
@@ -81,9 +90,22 @@ def draw_pose(rand: random.Random, translation_m: float, rotation_rad: float) ->
     return P.astype(np.float64)
 
 
+def as_stored(matrix: np.ndarray) -> np.ndarray:
+    """A calibration matrix as the layout and the loaders hold it: each value rounded to float32 (K_P2 files; their
+    KittiCalibHelper's Tr). The rotation is then theirs exactly; the translation within ~1e-8 m (their float32
+    baseline solve cannot be redone from the summed float64 one), which moves a point across a voxel face only when
+    it lies that close to one."""
+    return matrix.astype(np.float32).astype(np.float64)
+
+
 def peer_frame(protocol, sensor: SensorFrame) -> Frame:
     """The registration problem a peer card's stages get for a frame of the peers' layout."""
     seen, M = protocol.corrupt(sensor), protocol.motion(sensor)
+    if not sensor.preprocessed:  # a raw scan: the preprocessing that made the layout's cloud, its rounded calibration
+        from .data.corri2p_export import grid_points
+
+        sensor = dataclasses.replace(sensor, K=as_stored(sensor.K), T_cam_lidar=as_stored(sensor.T_cam_lidar))
+        seen = dataclasses.replace(seen, points=grid_points(seen.points), K=as_stored(seen.K))
     to_camera = sensor.T_cam_lidar if M is None else sensor.T_cam_lidar @ M
     seed = seed_of(int(sensor.draw_index), protocol.seed)
     dtype = np.float32 if protocol.name in FLOAT32_CARDS else np.float64

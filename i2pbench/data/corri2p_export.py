@@ -62,20 +62,35 @@ def read_scan(path: Path) -> np.ndarray:
     return scan
 
 
-def points_with_normals(scan: np.ndarray) -> np.ndarray:
-    """[7 x V] float32: the voxel grid's points, their nearest raw return's reflectance and their +z normals."""
+def _grid(scan: np.ndarray):
+    """Open3D's 0.1 m voxel grid of a scan (the point cloud object, for normals) and each voxel point's reflectance,
+    the nearest raw return's."""
     import open3d as o3d
     from scipy.spatial import cKDTree
 
     cloud = o3d.geometry.PointCloud()
     cloud.points = o3d.utility.Vector3dVector(scan[:, :3].astype(np.float64))
     down = cloud.voxel_down_sample(voxel_size=VOXEL_M)
+    _, nearest = cKDTree(scan[:, :3]).query(np.asarray(down.points), k=1)
+    return down, scan[nearest, 3]
+
+
+def grid_points(scan: np.ndarray) -> np.ndarray:
+    """[V x 4] float32 x, y, z, reflectance: the preprocessed cloud without its normals, as the layout stores it."""
+    down, reflectance = _grid(scan)
+    return np.column_stack([np.asarray(down.points), reflectance]).astype(np.float32)
+
+
+def points_with_normals(scan: np.ndarray) -> np.ndarray:
+    """[7 x V] float32: the voxel grid's points, their nearest raw return's reflectance and their +z normals."""
+    import open3d as o3d
+
+    down, reflectance = _grid(scan)
     down.estimate_normals(search_param=o3d.geometry.KDTreeSearchParamHybrid(radius=NORMAL_RADIUS_M,
                                                                             max_nn=NORMAL_MAX_NN))  # fmt: skip
     down.orient_normals_to_align_with_direction([0.0, 0.0, 1.0])
     xyz, normals = np.asarray(down.points), np.asarray(down.normals)
-    _, nearest = cKDTree(scan[:, :3]).query(xyz, k=1)
-    return np.concatenate([xyz.T, scan[nearest, 3][None], normals.T], axis=0).astype(np.float32)
+    return np.concatenate([xyz.T, reflectance[None], normals.T], axis=0).astype(np.float32)
 
 
 def intrinsics(calib: Path, camera: int) -> np.ndarray:

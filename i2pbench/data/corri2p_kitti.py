@@ -9,7 +9,8 @@ Each frame also carries `draw_index`, its index in the list the peers' loaders b
 (frame i of a sequence is 2 i, camera 3's 2 i + 1, after the earlier sequences' frames): under a peer card
 (`--protocol corri2p`, `cofii2p`) the stages get exactly the frame those loaders build for that index
 (i2pbench.protocol_peer), CoFiI2P's `SeedSequence([index])` draw included. The ring is unknown after voxelisation
-(zeros).
+(zeros). A frame's `dataset` is "kitti", the recording, so that its other draws are those of the same frame read by
+`kitti`: under those cards the two datasets give the same board.
 """
 
 from __future__ import annotations
@@ -28,6 +29,9 @@ from .calibration import check_intrinsics, check_rotation
 from .images import check_fits
 from .kitti import BENCHMARK_SEQUENCES, SPLIT_SEQUENCES, _parse_calib
 
+# the frames' `dataset`, which keys every per-frame draw (the protocol's T_rand, the extractors' keypoint subsets):
+# these are KITTI Odometry's recordings, so a frame draws as the same frame read by `kitti` does
+RECORDING = "kitti"
 POINT_ROWS = 7  # x, y, z, reflectance, normal x, y, z
 K_AGREES = 1e-3  # px: a K file is the calibration's P's 3 x 3 (stored as float32, ~1e-4 px off at most)
 
@@ -188,7 +192,7 @@ class Corri2PKitti(Dataset):
         check_fits(image_path, image, K, Ks / f"{stem}.npy")
         points = read_points(clouds / f"{stem}.npy")
         return SensorFrame(
-            dataset=self.name,
+            dataset=RECORDING,
             frame_id=frame_id,
             image=image,
             points=points,
@@ -198,6 +202,7 @@ class Corri2PKitti(Dataset):
             match_radius_px=self.match_radius_px,
             source=str(clouds / f"{stem}.npy"),
             draw_index=self.draw_index(frame_id),
+            preprocessed=True,
         )
 
     def _same_size(self, path: Path, image: np.ndarray) -> None:
