@@ -9,12 +9,16 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from conftest import SHARED_DATA
 
-from i2pbench.data.corri2p_export import export_kitti, read_scan
+from i2pbench.boards import leaderboard
+from i2pbench.cli import main
+from i2pbench.data.corri2p_export import read_scan
 from i2pbench.data.corri2p_kitti import Corri2PKitti
 from i2pbench.data.images import read_image
+from i2pbench.data.kitti import KittiOdometry
 from i2pbench.errors import DataError
 from i2pbench.protocol import Protocol
 from i2pbench.protocol_peer import draw_pose, seed_of
@@ -25,12 +29,11 @@ KITTI = SHARED_DATA / "kitti_odometry"
 
 @pytest.fixture(scope="module")
 def export(tmp_path_factory) -> Path:
-    """Sequence 01 (one real frame) exported."""
+    """The six real frames (sequences 00 and 01) exported by the command."""
     if not KITTI.is_dir():
         pytest.skip(f"{KITTI} is not present")
-    out = tmp_path_factory.mktemp("corri2p")
-    summary = export_kitti(KITTI, out, ["01"])
-    assert summary.frames == {"01": 1}
+    out = tmp_path_factory.mktemp("corri2p") / "export"
+    assert main(["data", "export", "--layout", "corri2p", "--from", str(KITTI), "--out", str(out), "--quiet"]) == 0
     return out
 
 
@@ -77,15 +80,15 @@ def test_reader_hands_the_files_as_they_are(export):
     # T_cam_lidar = P2's baseline @ Tr: baseline t_x = (45.75831 - 604.0814 * 0.004981016) / 707.0493
     baseline = (45.75831 - 604.0814 * 0.004981016) / 707.0493
     assert sensor.T_cam_lidar[0, 3] == pytest.approx(-0.02236670891814 + baseline, abs=1e-6)
-    assert sensor.draw_index == 0
+    assert sensor.draw_index == 10  # after sequence 00's five frames, two entries (P2, P3) a frame
 
 
 def test_camera_3_is_the_odd_index(layout):
-    seq = layout / "sequences" / "01"
-    shutil.copytree(seq / "img_P2", seq / "img_P3")
-    shutil.copytree(seq / "K_P2", seq / "K_P3")
+    for seq in (layout / "sequences").iterdir():
+        shutil.copytree(seq / "img_P2", seq / "img_P3")
+        shutil.copytree(seq / "K_P2", seq / "K_P3")
     three = Corri2PKitti("all", {"root": str(layout), "camera": 3}).load("01/000000")
-    assert three.draw_index == 1
+    assert three.draw_index == 11
     # P3's baseline: t_x = (-334.1081 - 604.0814 * 0.003201153) / 707.0493, 0.536 m from camera 2's
     two = _load(layout)
     gap = (45.75831 - 604.0814 * 0.004981016 + 334.1081 + 604.0814 * 0.003201153) / 707.0493
@@ -166,3 +169,31 @@ def test_image_of_another_size(layout):
     np.save(seq / "img_P2" / "000001.npy", np.load(seq / "img_P2" / "000000.npy")[:360, :1200])
     with pytest.raises(DataError, match=r"000001\.npy: a 1200 x 360 image where this sequence's are 1224 x 370"):
         Corri2PKitti("all", {"root": str(layout)}).load("01/000001")
+
+
+@pytest.mark.parametrize("card", ["corri2p", "cofii2p"])
+def test_the_export_and_the_original_layout_give_the_same_board(export, tmp_path, card):
+    """The must-show of issue 41, on two frames: the same frames reach the stages from either layout."""
+    boards = []
+    for dataset, root in (("corri2p-kitti", export), ("kitti", KITTI)):
+        runs = tmp_path / dataset
+        assert main(["run", "--preset", "classic-oracle", "--dataset", dataset, "--data-root", str(root), "--split",
+                     "all", "--frames", "2", "--protocol", card, "--runs-dir", str(runs), "--quiet"]) == 0  # fmt: skip
+        board = leaderboard.read(next((runs / "leaderboards").glob("*.csv")))
+        boards.append(board.drop(columns=[c for c in board.columns if "latency" in c or c == "dataset"]))
+    assert boards[0].iloc[0][leaderboard.ACC] == 100.0  # the oracle registers both frames
+    pd.testing.assert_frame_equal(boards[0], boards[1])
+
+
+def test_the_raw_layout_gives_the_exports_frames(export):
+    """Under a loader card, a kitti frame is the export's frame: the same grid and draws (points within float32
+    rounding of a ~1e-8 m calibration difference, docs/datasets.md)."""
+    protocol = CORRI2P.protocol(0, "kitti")
+    raw = KittiOdometry("all", {"root": str(KITTI)})
+    exported = Corri2PKitti("all", {"root": str(export)})
+    for frame_id in ("00/000003", "01/000000"):
+        a, b = protocol.apply(raw.load(frame_id)), protocol.apply(exported.load(frame_id))
+        assert np.array_equal(a.image, b.image) and np.array_equal(a.K, b.K)
+        assert a.points.shape == b.points.shape == (40960, 4)
+        assert np.abs(a.points - b.points).max() < 1e-4
+        assert np.abs(a.T_gt - b.T_gt).max() < 1e-9
