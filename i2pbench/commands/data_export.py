@@ -13,11 +13,16 @@ LAYOUTS = ("corri2p",)
 def add_parser(data_sub: argparse._SubParsersAction) -> None:
     p = data_sub.add_parser("export", help="write a preprocessed layout (corri2p: CorrI2P, CoFiI2P, ICL) from KITTI")
     p.add_argument("--layout", required=True, choices=LAYOUTS, help="the layout to write (docs/datasets.md)")
-    p.add_argument("--from", dest="source", required=True, metavar="ROOT",
-                   help="the original KITTI Odometry root (holding sequences/NN/{velodyne,image_2,calib.txt})")
+    p.add_argument(
+        "--from",
+        dest="source",
+        required=True,
+        metavar="ROOT",
+        help="the original KITTI Odometry root (holding sequences/NN/{velodyne,image_2,calib.txt})",
+    )
     p.add_argument("--out", required=True, metavar="DIR", help="folder to write calib/ and sequences/ into")
     p.add_argument("--sequences", nargs="+", metavar="NN", help="sequences to export (default: every one)")
-    p.add_argument("--quiet", action="store_true", help="no line per frame")  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no line per frame")
 
 
 def run(args: argparse.Namespace) -> int:
