@@ -12,7 +12,7 @@ What had to change for the code to run here, in this script only (docs/methods.m
   for an empty node, which the authors' mask then zeroes); `torch.cuda.device(-1)` is a no-op on CPU tensors;
 - torchvision is stubbed: imagenet.py imports `load_state_dict_from_url`, called only for ImageNet weights, which
   the recipe overwrites;
-- options.py builds 128 + 128 nodes while the loader samples 256 + 256 (kitti_pc_img_dataloader.py:110-111): the
+- options.py builds 128 + 128 nodes while the loader samples 256 + 256 (kitti_pc_img_dataloader.py:107-108): the
   nodes here follow options.py; `input_pt_num` is set to `--n` (the encoder's node mask is built for that many);
 - the loader reads files made by scripts partly unreleased (img_P2, K_P2, pc_npy_with_normal): here the scan is
   voxelised at 0.1 m with open3d normals (radius 0.6, 30 neighbours, oriented to +z) and nearest-point intensity
@@ -189,7 +189,7 @@ def prepare(frame: Path, index: int, n: int, nodes: int) -> dict[str, np.ndarray
 
 
 def losses(authors: dict, inputs: dict, out: dict) -> dict[str, np.ndarray]:
-    """train.py:222-262 on one frame: circle loss over the anchors, det_loss2, total = desc + 0.5 det."""
+    """train.py:236-263 on one frame: circle loss over the anchors, det_loss2, total = desc + 0.5 det."""
     t = {k: torch.from_numpy(np.asarray(v))[None] for k, v in inputs.items() if k != "image"}
     kpt = t["pc_kpt_idx"].shape[1]
     img_f, pc_f, img_s, pc_s = (out[k] for k in ("img_feature", "pc_feature", "img_score", "pc_score"))

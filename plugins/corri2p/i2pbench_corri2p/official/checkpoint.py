@@ -1,4 +1,4 @@
-"""The authors' state-dict layout (network.py `CorrI2P`, saved by train.py:281-288 as `model.state_dict()`, or
+"""The authors' state-dict layout (network.py `CorrI2P`, saved by train.py:277-292 as `model.state_dict()`, or
 under `module.` when wrapped in DataParallel) and ours (network.py `CorrI2PNet`): the key mapping, both ways.
 
 - `pc_encoder.{first,second,final}_pointnet.layers.i.{conv,norm}` -> `encoder3d.{first,second,last}.i.{0,1}`;

@@ -1,4 +1,4 @@
-"""`i2pbench weights import corri2p-official FILE`: a state dict of the authors' `CorrI2P` (train.py:281-288 saves
+"""`i2pbench weights import corri2p-official FILE`: a state dict of the authors' `CorrI2P` (train.py:277-292 saves
 `model.state_dict()`; `module.`-prefixed keys when it was wrapped in DataParallel) as the official size's weights.
 
 Every key goes through checkpoint.py's mapping onto the one learned stage (the matcher, whose network sits under

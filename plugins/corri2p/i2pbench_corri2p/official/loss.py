@@ -1,4 +1,4 @@
-"""The authors' training loss (loss.py `desc_loss`, `det_loss2`; train.py:222-262): on anchors (in-view points and
+"""The authors' training loss (loss.py `desc_loss`, `det_loss2`; train.py:236-263): on anchors (in-view points and
 the pixels they fall in, at stride 4), a circle loss on cosine distances 1 - <f_img, f_pc> both ways (margins 0.2 /
 1.8, scale 10), and the overlap scores pushed to 1 on anchors and 0 on out-of-view points and pixels; the total is
 desc + 0.5 det. A pair is true when the point projects within 1 px (stride-4 pixels) of the pixel."""

@@ -1,6 +1,6 @@
 """CorrI2P's whole network as the authors' `CorrI2P` computes it (network.py:11-230): the two encoders, the
 exchange, the heads. The node counts are the network's `Options` (options.py: 128 + 128): the published loader
-samples 256 + 256 nodes (kitti_pc_img_dataloader.py:110-111), which no layer built from options.py accepts, so the
+samples 256 + 256 nodes (kitti_pc_img_dataloader.py:107-108), which no layer built from options.py accepts, so the
 nodes follow options.py (the authors' training log folder is named `log_xy_40960_128`)."""
 
 from __future__ import annotations

@@ -8,11 +8,12 @@ official size runs no encoder or exchanger, and the matcher holds the network (n
 `encoder3d.`, `encoder2d.`, `exchange.` and `heads.`.
 
 Pixels (`corri2p-official-grid`): the authors' image is the frame's, top 50 rows cut, halved (OpenCV linear) and
-centre-cropped to 160 x 512 (options.py `crop_original_top_rows`, kitti_pc_img_dataloader.py:300-312); the network
+centre-cropped to 160 x 512 (options.py `crop_original_top_rows`, kitti_pc_img_dataloader.py:274-287); the network
 scores every cell of its stride-4 map, whose (x, y) the authors' PnP reads with K at 1/4 of the crop's
-(cal_error_all.py:40-45, 89-94). That cell is full-resolution pixel (8x + 2 dx, 8y + 2 dy + 50) under the frame's K
+(cal_error_all.py:44-48, 81-86). That cell is full-resolution pixel (8x + 2 dx, 8y + 2 dy + 50) under the frame's K
 (dx, dy: the crop's offsets in the half-size image), exactly: so EPnP on these pixels with the frame's K and 8 px is
-their EPnP on (x, y) with K/4 and 1 px.
+their EPnP on (x, y) with K/4 and 1 px. The crop (top rows, scale, size) is a conf of the grid and of the matcher,
+their defaults the authors'; a frame too small for it gets no pixel (the conformance kit scales it to its frame).
 
 Points (`corri2p-official-points`): the scan voxelised at 0.1 m with open3d normals (radius 0.6 m, 30 neighbours,
 oriented to +z) and the intensity of the nearest return (kitti_script/kitti_pc_bin_to_npy_with_downsample_sn.py),
@@ -163,7 +164,7 @@ class OfficialPoints(Extractor3D):
 
 
 class OfficialCorrI2P(BatchedStage, Matcher):
-    """The authors' network and inference rule (cal_error_all.py:59-81): pixels and points whose overlap score
+    """The authors' network and inference rule (cal_error_all.py:61-77): pixels and points whose overlap score
     exceeds 0.9, each such point paired with the selected pixel nearest in cosine distance. A pixel reads the cell it
     falls in (the official grid's pixels are every cell once, as theirs; other pixels work too)."""
 
@@ -172,9 +173,9 @@ class OfficialCorrI2P(BatchedStage, Matcher):
     provides = frozenset({MATCHES})
     runtime_keys = frozenset({"score_threshold"})
     default_conf: dict[str, Any] = {
-        "score_threshold": 0.9,  # cal_error_all.py:59, 67 (both sides)
+        "score_threshold": 0.9,  # cal_error_all.py:61, 69 (both sides)
         "nodes": NODES,  # node_a and node_b each (options.py; network.py says why not the loader's 256)
-        "node_pool": 8,  # FPS over a random 8 x nodes points (kitti_pc_img_dataloader.py:356-364)
+        "node_pool": 8,  # FPS over a random 8 x nodes points (kitti_pc_img_dataloader.py:330-338)
         "radius_px": 8.0,  # a pair's tolerance: train.py's 1 px at stride 4 of the half-size image
         **CROP,
     }
