@@ -54,7 +54,7 @@ def test_import_round_trips_the_authors_state_dict(authors_state, authors_file, 
     assert origin["importer"] == "corri2p-official" and origin["file"] == "mode_best_t.t7"
     assert origin["sha256"] == __import__("hashlib").sha256(authors_file.read_bytes()).hexdigest()
     assert origin["dropped"] == ["img_encoder.backbone.fc.bias", "img_encoder.backbone.fc.weight"]
-    assert "released no weights" in str(checkpoint.trained_on)
+    assert "user-supplied" in str(checkpoint.trained_on) and "released no weights" in str(checkpoint.trained_on)
 
 
 def test_import_refuses_a_key_that_does_not_fit_by_name(authors_state, tmp_path):

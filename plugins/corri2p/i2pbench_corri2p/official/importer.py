@@ -3,8 +3,8 @@
 
 Every key goes through checkpoint.py's mapping onto the one learned stage (the matcher, whose network sits under
 `net.`); the ResNet's ImageNet `fc` is dropped. A key the mapping does not know, a missing key or a shape that does
-not fit is refused by name. The authors released no weights (rsy6318/CorrI2P issues #7, #13): a file is the user's
-own training of their code, recorded as such with the file's sha256 (i2pbench.weights.import_weights).
+not fit is refused by name. The authors released no weights (rsy6318/CorrI2P issues #7, #13): a file is whatever
+the user trained with their code, recorded as user-supplied with the file's sha256 (i2pbench.weights.import_weights).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from .checkpoint import dropped, ours
 SIZE = "official"
 STAGE = "matcher"
 PREFIX = "net."
-TRAINED_ON = "a training of the authors' code (rsy6318/CorrI2P released no weights; KITTI 00-08 in train.py)"
+TRAINED_ON = "user-supplied CorrI2P state dict (the authors released no weights; their train.py trains on KITTI 00-08)"
 
 
 def expected() -> dict[str, torch.Tensor]:
