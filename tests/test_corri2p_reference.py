@@ -158,3 +158,19 @@ def test_reference_comparison_fails_on_an_altered_set(folder, ours_outputs, tmp_
     _, _, reread = load(altered)
     problems = failures(ours_outputs, reread)
     assert problems and all(p.startswith(name) for p in problems)
+
+
+def test_reference_image_is_the_official_stages_crop(folder, shared_data):
+    """the official size prepares the frame's image as the authors' loader (the reference script) did."""
+    from i2pbench_corri2p.official.stages import CROP, network_image
+
+    from i2pbench.data.kitti import KittiOdometry
+
+    meta, inputs, _ = load(folder)
+    sequences = shared_data / meta["frame"]
+    if not sequences.is_dir():
+        pytest.skip(f"{sequences} is not present")
+    frame = KittiOdometry("all", {"root": str(sequences.parent.parent)}).load(
+        f"{sequences.name}/{meta['frame_index']:06d}"
+    )
+    np.testing.assert_array_equal(network_image(frame.image, CROP), inputs["image"])

@@ -62,7 +62,8 @@ PRESETS = (
     MethodPreset(
         "corri2p-official",
         (Row("official"),),
-        "CorrI2P as the authors' code computes it (run with --weights from `i2pbench weights import`)",
+        "CorrI2P's authors' own network (rsy6318/CorrI2P), not a look-alike; untrained unless given --weights from "
+        "`i2pbench weights import corri2p-official`",
     ),
     MethodPreset(
         "corri2p-ablation",
