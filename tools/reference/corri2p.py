@@ -19,7 +19,7 @@ What had to change for the code to run here, in this script only (docs/methods.m
   (kitti_script/kitti_pc_bin_to_npy_with_downsample_sn.py), moved into camera 2's frame, voxelised again at 0.1 m
   (the loader), `--n` random points; the image (RGB) loses its top 50 rows (options.py `crop_original_top_rows`),
   is halved (OpenCV linear) and centre-cropped to 160 x 512 (the loader's val mode), K likewise; its FarthestSampler
-  (which uses `np.int`, gone from numpy 2) is written out here with the same arithmetic.
+  (which uses `np.int`, removed in numpy 1.24) is written out here with the same arithmetic.
 """
 
 from __future__ import annotations
