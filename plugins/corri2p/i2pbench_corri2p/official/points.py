@@ -75,8 +75,8 @@ class PointEncoder(nn.Module):
     ) -> dict[str, torch.Tensor]:  # fmt: skip
         """pc, normals [B x 3 x N], intensity [B x 1 x N], node_a [B x 3 x Ma], node_b [B x 3 x Mb] -> a dict:
         `centers` [B x 3 x N] (each point's node mean), `point_node_a` [B x N x k] (nearest node_a first),
-        `node_a_mean` [B x 3 x Ma], `first` [B x Ca/2 x N],
-        `second` [B x Ca x N], `node_a` [B x Ca x Ma], `node_b` [B x Cb x Mb], `global` [B x Cg x 1]."""
+        `node_a_mean` [B x 3 x Ma], `first` [B x Ca/2 x N], `second` [B x Ca x N], `node_a` [B x Ca x Ma],
+        `node_b` [B x Cb x Mb], `global` [B x Cg x 1]."""
         count = node_a.shape[2]
         knn = nearest(pc, node_a, self.k_point_a)
         owner = knn[:, :, 0]
