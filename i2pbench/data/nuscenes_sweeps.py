@@ -105,8 +105,9 @@ def _lidar(nusc: Any, token: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return points, intensity, record_pose(nusc, record)
 
 
-def accumulate(nusc: Any, lidar: dict[str, Any]) -> Accumulated:
-    """The record's own sweep, then up to ACCUMULATE later and ACCUMULATE earlier ones (those the chain holds)."""
+def accumulate(nusc: Any, lidar: dict[str, Any], skip: int = ACCUMULATE_SKIP) -> Accumulated:
+    """The record's own sweep, then up to ACCUMULATE later and ACCUMULATE earlier ones, every `skip`-th (those the
+    chain holds)."""
     points, intensity, pose = _lidar(nusc, lidar["token"])
     clouds, intensities = [points], [intensity]
     world_to_this = np.linalg.inv(pose)
@@ -115,7 +116,7 @@ def accumulate(nusc: Any, lidar: dict[str, Any]) -> Accumulated:
     for direction in ("next", "prev"):
         record, counter, taken = lidar, 1, 0
         while taken < ACCUMULATE and record[direction] != "":
-            if counter % ACCUMULATE_SKIP == 0:
+            if counter % skip == 0:
                 other, other_intensity, other_pose = _lidar(nusc, record[direction])
                 moved = np.dot(np.dot(lidar_from_vehicle, np.dot(world_to_this, other_pose)), vehicle_from_lidar)
                 homogeneous = np.concatenate([other, np.ones((1, other.shape[1]), dtype=other.dtype)], axis=0)

@@ -113,8 +113,9 @@ def _save(path: Path, array: np.ndarray) -> int:
 class _Writer:
     """One layout's files for one dataroot version."""
 
-    def __init__(self, nusc: Any, layout: Layout, out: Path, min_points: int, min_in_image: int) -> None:
+    def __init__(self, nusc: Any, layout: Layout, out: Path, min_points: int, min_in_image: int, skip: int) -> None:
         self.nusc, self.layout, self.min_points, self.min_in_image = nusc, layout, min_points, min_in_image
+        self.skip = skip
         self.base = out / FOLDER[nusc.version]
         for name in layout.folders:
             if name is not None:
@@ -128,7 +129,7 @@ class _Writer:
     def frame(self, position: int, lidar: dict[str, Any]) -> None:
         from ..protocol_peer import voxel_grid
 
-        cloud = sweeps.accumulate(self.nusc, lidar)
+        cloud = sweeps.accumulate(self.nusc, lidar, self.skip)
         if cloud.points.shape[1] < self.min_points:
             return self._drop(f"fewer than {self.min_points} points accumulated")
         rows = np.column_stack([cloud.points.T.astype(np.float64), cloud.intensity[0]])
@@ -174,8 +175,10 @@ class _Writer:
 
 def export_nuscenes(dataroot: Path, out: Path, layout: str, version: str | None = None,
                     min_points: int = MIN_POINTS, min_in_image: int = MIN_IN_IMAGE,
-                    progress: Callable[[str], None] | None = None) -> NuScenesExportSummary:  # fmt: skip
-    """Export every daytime scene of the dataroot's version to `out` in `layout`'s files."""
+                    progress: Callable[[str], None] | None = None,
+                    accumulate_skip: int = sweeps.ACCUMULATE_SKIP) -> NuScenesExportSummary:  # fmt: skip
+    """Export every daytime scene of the dataroot's version to `out` in `layout`'s files (`accumulate_skip`: the
+    scripts' accumulation_frame_skip, 4, for 20 Hz sweeps)."""
     from .nuscenes import VERSIONS, open_devkit
 
     if layout not in LAYOUTS:
@@ -188,7 +191,7 @@ def export_nuscenes(dataroot: Path, out: Path, layout: str, version: str | None 
         version = present[0]
     nusc = open_devkit(str(dataroot), version)
     writer, start, chained = (
-        _Writer(nusc, LAYOUTS[layout], Path(out), min_points, min_in_image),
+        _Writer(nusc, LAYOUTS[layout], Path(out), min_points, min_in_image, accumulate_skip),
         time.perf_counter(),
         [],
     )
@@ -224,8 +227,8 @@ def _write_metadata(out: Path, writer: _Writer, dataroot: Path, version: str, mi
         "frames_from": "the 20 Hz sweep chain, every 2nd record"
         if chained
         else "every keyframe (the tables hold no sweep chain)",
-        "accumulation": f"the record's sweep and up to {sweeps.ACCUMULATE} each way, every "
-        f"{sweeps.ACCUMULATE_SKIP}th; where the chain ends or is absent, those it holds",
+        "accumulation": f"the record's sweep and up to {sweeps.ACCUMULATE} each way, every {writer.skip}th; "
+        "where the chain ends or is absent, those it holds",
         "camera_choice": "the first record of the nearby list with enough points in its image"
         if layout.gaps
         else "the sample's own camera record (CorrI2P draws one of the nearby list at random, unseeded)",
