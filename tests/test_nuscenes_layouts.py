@@ -209,3 +209,15 @@ def test_image_of_another_layout(exports, tmp_path):
     np.save(root / "test" / "int" / "000000.npy", (K * 0.5).astype(np.float32) + np.diag([0, 0, 0.5]).astype("f4"))
     with pytest.raises(DataError, match="does not fit this calibration"):
         CoFiI2PNuScenes("test", {"root": str(root)}).load("test/000000")
+
+
+def test_a_flag_of_the_other_source_is_refused(tmp_path, capsys):
+    out = str(tmp_path / "o")
+    assert main(["data", "export", "--layout", "corri2p", "--from", str(tmp_path), "--out", out,
+                 "--min-points", "3"]) == 2  # fmt: skip
+    assert "--layout corri2p: --min-points belongs to the other source" in capsys.readouterr().err
+    assert main(["data", "export", "--layout", "cofii2p-nuscenes", "--from", str(tmp_path), "--out", out,
+                 "--sequences", "00"]) == 2  # fmt: skip
+    assert "--layout cofii2p-nuscenes: --sequences belongs to the other source" in capsys.readouterr().err
+    assert main(["data", "export", "--layout", "cofii2p-nuscenes", "--from", str(tmp_path), "--out", out]) == 2
+    assert f"{tmp_path}: holds no v1.0-* table folder; name one with --version" in capsys.readouterr().err

@@ -14,7 +14,10 @@ LAYOUTS = ("corri2p", *NUSCENES_LAYOUTS)
 
 
 def add_parser(data_sub: argparse._SubParsersAction) -> None:
-    p = data_sub.add_parser("export", help="write a preprocessed layout (corri2p: CorrI2P, CoFiI2P, ICL) from KITTI")
+    p = data_sub.add_parser(
+        "export",
+        help="write a preprocessed layout (corri2p: CorrI2P, CoFiI2P, ICL) from KITTI, or a peer's nuScenes one",
+    )
     p.add_argument("--layout", required=True, choices=LAYOUTS, help="the layout to write (docs/datasets.md)")
     p.add_argument(
         "--from",
@@ -43,6 +46,15 @@ def add_parser(data_sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..errors import I2PBenchError
+
+    nuscenes = {"--version": args.version, "--min-points": args.min_points, "--min-in-image": args.min_in_image}
+    given = [flag for flag, value in (*nuscenes.items(), ("--sequences", args.sequences)) if value is not None]
+    wrong = [f for f in given if (f == "--sequences") == (args.layout in NUSCENES_LAYOUTS)]
+    if wrong:
+        raise I2PBenchError(f"data export --layout {args.layout}: {', '.join(wrong)} belongs to the other source "
+                            "(--sequences to KITTI's corri2p; --version, --min-points, --min-in-image to "
+                            "nuScenes)")  # fmt: skip
     if args.layout in NUSCENES_LAYOUTS:
         return run_nuscenes(args)
     from ..data.corri2p_export import export_kitti
