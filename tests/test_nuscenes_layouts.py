@@ -221,3 +221,10 @@ def test_a_flag_of_the_other_source_is_refused(tmp_path, capsys):
     assert "--layout cofii2p-nuscenes: --sequences belongs to the other source" in capsys.readouterr().err
     assert main(["data", "export", "--layout", "cofii2p-nuscenes", "--from", str(tmp_path), "--out", out]) == 2
     assert f"{tmp_path}: holds no v1.0-* table folder; name one with --version" in capsys.readouterr().err
+
+
+def test_an_export_over_another_is_refused(exports, dataroot, capsys):
+    """CoFiI2P names files by list position: a second export's files would mix with the first's."""
+    out = str(exports["cofii2p-nuscenes"])
+    assert main(["data", "export", "--layout", "cofii2p-nuscenes", "--from", str(dataroot), "--out", out]) == 2
+    assert "test/pc already holds an export (files of two exports would mix)" in capsys.readouterr().err

@@ -158,7 +158,11 @@ def nearby_cameras(nusc: Any, lidar: dict[str, Any], channel: str = "CAM_FRONT")
     each within MAX_CAMERA_M of the LiDAR's ego pose. As published, the search starts one record out, so the two
     records next to the sample's are never listed."""
     lidar_inv = np.linalg.inv(record_pose(nusc, lidar))
-    first = nusc.get("sample_data", nusc.get("sample", lidar["sample_token"])["data"][channel])
+    data = nusc.get("sample", lidar["sample_token"])["data"]
+    if channel not in data:
+        raise DataError(f"{Path(nusc.dataroot) / nusc.version / 'sample.json'}: sample {lidar['sample_token']} has "
+                        f"no {channel} record (it has {', '.join(sorted(data))})")  # fmt: skip
+    first = nusc.get("sample_data", data[channel])
     tokens = [first["token"]]
     for direction in ("next", "prev"):
         if first[direction] == "":

@@ -117,6 +117,10 @@ class _Writer:
         self.nusc, self.layout, self.min_points, self.min_in_image = nusc, layout, min_points, min_in_image
         self.skip = skip
         self.base = out / FOLDER[nusc.version]
+        points = self.base / layout.folders[0]
+        if points.is_dir() and any(points.iterdir()):
+            raise DataError(f"{points} already holds an export (files of two exports would mix); choose another "
+                            "--out or remove it")  # fmt: skip
         for name in layout.folders:
             if name is not None:
                 (self.base / name).mkdir(parents=True, exist_ok=True)
@@ -189,6 +193,8 @@ def export_nuscenes(dataroot: Path, out: Path, layout: str, version: str | None 
         if len(present) != 1:
             raise DataError(f"{dataroot}: holds {present or 'no v1.0-* table folder'}; name one with --version")
         version = present[0]
+    if version not in FOLDER:
+        raise DataError(f"--version {version!r}: choose one of {sorted(FOLDER)}")
     nusc = open_devkit(str(dataroot), version)
     writer, start, chained = (
         _Writer(nusc, LAYOUTS[layout], Path(out), min_points, min_in_image, accumulate_skip),
