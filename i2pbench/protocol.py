@@ -17,8 +17,8 @@ A protocol card other than the default (i2pbench.scoring.cards) may give its sta
 frame: an image cut, resized and cropped (K alike), a voxel grid and a sampled point count (protocol_inputs), and a
 T_rand drawn in the camera frame, the cloud first taken there (T_gt = inv(T_rand), T_init = I). Each such field
 stays off the card at its default, so the default card's identity never moved. A frame of a
-dataset with the peers' dataset index (`draw_index`: KITTI and its CorrI2P layout) is built under the corri2p and
-cofii2p cards as those papers' loaders build it instead (protocol_peer).
+dataset with the peers' dataset index (`draw_index`: KITTI, its CorrI2P layout, the peers' nuScenes layouts) is
+built under the corri2p and cofii2p cards as those papers' loaders build it instead (protocol_peer).
 """
 
 from __future__ import annotations

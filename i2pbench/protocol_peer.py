@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import random
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -34,9 +35,32 @@ FLOAT32_CARDS = frozenset({"cofii2p"})
 LOADER_CARDS = frozenset({"corri2p", "cofii2p"})  # the cards whose loaders this module follows
 
 
+@dataclass(frozen=True)
+class NuScenesLoader:
+    """What a peer's nuScenes loader does to its layout's stored frame (cloud already in the camera frame, image
+    already cut and resized): `points` drawn, the image resized by `image_scale` and centre-cropped to 160 x 320."""
+
+    card: str
+    points: int
+    image_scale: float
+    crop: tuple[int, int] = (160, 320)
+
+
+# CoFiI2P's data/nuscenes.py:180-229 (Options_Nuscenes: 20480 points; x0.5, then 160 x 320) and CorrI2P's
+# nuscenes_pc_img_dataloader.py:223-278 (input_pt_num 40960; the stored 320 x 160 image cropped as it is)
+NUSCENES_LOADERS = {
+    "cofii2p-nuscenes": NuScenesLoader("cofii2p", 20480, 0.5),
+    "corri2p-nuscenes": NuScenesLoader("corri2p", 40960, 1.0),
+}
+
+
 def follows_loader(protocol, sensor: SensorFrame) -> bool:
-    """Whether `protocol` builds this frame as its paper's loader does: a frame with a dataset index, a loader card."""
-    return sensor.draw_index is not None and protocol.name in LOADER_CARDS
+    """Whether `protocol` builds this frame as its paper's loader does: a frame with a dataset index and a loader
+    card (on a peer's nuScenes layout, that layout's own paper's card)."""
+    if sensor.draw_index is None:
+        return False
+    layout = NUSCENES_LOADERS.get(sensor.dataset)
+    return protocol.name == layout.card if layout else protocol.name in LOADER_CARDS
 
 
 def seed_of(index: int, seed: int = 0) -> int:
@@ -98,8 +122,40 @@ def as_stored(matrix: np.ndarray) -> np.ndarray:
     return matrix.astype(np.float32).astype(np.float64)
 
 
+def nuscenes_layout_frame(protocol, sensor: SensorFrame, loader: NuScenesLoader) -> Frame:
+    """The problem a peer's nuScenes loader builds from its layout's frame for the frame's index: numpy and Python
+    seeded with the index (CoFiI2P's `np.random.seed(index)`, `random.seed(index)`; CorrI2P seeds nothing, and gets
+    the same), `points` drawn, P_random drawn and applied in the camera frame, the image resized and centre-cropped.
+    The ground truth is their P, inv(P_random)."""
+    seen, M = protocol.corrupt(sensor), protocol.motion(sensor)
+    index = int(sensor.draw_index)
+    seed = index if protocol.seed == 0 else seed_of(index, protocol.seed)
+    cloud = seen.points if M is None else moved(M, seen.points)
+    cloud = cloud[draw_points(len(cloud), loader.points, np.random.RandomState(seed))]
+    T_rand = draw_pose(random.Random(seed), protocol.translation_range_m, protocol.rotation_range_rad)
+    _, offset = image_geometry(seen.image.shape, 0, loader.image_scale, loader.crop)
+    K, K_true = transform_K(seen.K, 0, loader.image_scale, offset), transform_K(sensor.K, 0, loader.image_scale, offset)
+    points = moved(T_rand, cloud)
+    to_camera = np.eye(4) if M is None else M
+    return Frame(
+        dataset=sensor.dataset,
+        frame_id=sensor.frame_id,
+        image=resample_image(seen.image, 0, loader.image_scale, loader.crop),
+        points=points.astype(np.float32),
+        ring=np.zeros(len(points), np.int16),
+        ranges=np.linalg.norm(cloud[:, :3], axis=1).astype(np.float32),
+        K=K,
+        T_gt=invert(T_rand @ to_camera),
+        match_radius_px=sensor.match_radius_px,
+        T_init=np.eye(4),
+        K_gt=None if np.array_equal(K, K_true) else K_true,
+    )
+
+
 def peer_frame(protocol, sensor: SensorFrame) -> Frame:
     """The registration problem a peer card's stages get for a frame of the peers' layout."""
+    if sensor.dataset in NUSCENES_LOADERS:
+        return nuscenes_layout_frame(protocol, sensor, NUSCENES_LOADERS[sensor.dataset])
     seen, M = protocol.corrupt(sensor), protocol.motion(sensor)
     if not sensor.preprocessed:  # a raw scan: the preprocessing that made the layout's cloud, its rounded calibration
         from .data.corri2p_export import grid_points

@@ -28,6 +28,8 @@ def register_datasets(register) -> None:
     register("i2pbench.data.kitti_drives:KittiDrives", name="kitti-drives")
     register("i2pbench.data.nuscenes:NuScenes", name="nuscenes")
     register("i2pbench.data.corri2p_kitti:Corri2PKitti", name="corri2p-kitti")
+    register("i2pbench.data.peer_nuscenes:CoFiI2PNuScenes", name="cofii2p-nuscenes")
+    register("i2pbench.data.peer_nuscenes:CorrI2PNuScenes", name="corri2p-nuscenes")
     register("i2pbench.data.synthetic:SyntheticStreets", name="synthetic")
 
 

@@ -72,6 +72,8 @@ class Inputs:
         return [f"{key}: {mine[key]} ({label}: {theirs[key]})" for key in mine if mine[key] != theirs[key]]
 
 
+# the peers' preprocessed nuScenes layouts (i2pbench.data.peer_nuscenes) and the card whose loader reads each
+NUSCENES_LAYOUTS = {"cofii2p-nuscenes": "cofii2p", "corri2p-nuscenes": "corri2p"}
 NATIVE = Inputs()  # the dataset's frame as it is: the default card's inputs
 
 
@@ -97,9 +99,9 @@ class ProtocolCard:
     notes: tuple[str, ...] = ()  # where the card departs from the code, or the code is ambiguous
 
     def inputs(self, dataset: str) -> Inputs | None:
-        """The card's inputs for a dataset: nuScenes' for a dataset named nuscenes*, KITTI's for any other (the
-        synthetic streets mimic KITTI)."""
-        return self.nuscenes if dataset.startswith("nuscenes") else self.kitti
+        """The card's inputs for a dataset: nuScenes' for a dataset named nuscenes* or a peer's nuScenes layout,
+        KITTI's for any other (the synthetic streets mimic KITTI)."""
+        return self.nuscenes if dataset.startswith("nuscenes") or dataset in NUSCENES_LAYOUTS else self.kitti
 
     def protocol(self, seed: int = 0, dataset: str = "kitti") -> Protocol:
         """The Protocol a run under this card uses on `dataset`: its inputs, thresholds from its rules, its name and
@@ -118,6 +120,12 @@ class ProtocolCard:
 
     def unmet(self, dataset: str) -> list[str]:
         """The inputs i2pbench cannot give this card's stages on `dataset` ([] when a run can honour it)."""
+        owner = NUSCENES_LAYOUTS.get(dataset)
+        if owner == self.name:
+            return []  # the export made the sweeps and the nearby camera's image; protocol_peer the rest
+        if owner and self.name in NUSCENES_LAYOUTS.values():
+            return [f"{dataset} holds the files {owner}'s loader reads (its image sizes, its clouds): run it under "
+                    f"--protocol {owner}"]  # fmt: skip
         inputs = self.inputs(dataset)
         if inputs is None:
             return [f"{self.paper}'s code has no {dataset} pipeline to follow"]

@@ -1,0 +1,50 @@
+"""The authors' own code on i2pbench's nuScenes layouts (scripts/nuscenes_layout_check.py; its last run is
+docs/results/nuscenes-layout-check.json): each peer's loader returns what i2pbench hands the stages under its card,
+and CoFiI2P's build scripts write the files i2pbench's export writes. Each peer needs its checkout, named by an
+environment variable; without one the test skips naming it."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+from conftest import SHARED_DATA
+from nuscenes_layout_check import TOLERANCES, check, check_build, export_both
+
+RECORDS = SHARED_DATA / "nuscenes_real"
+CHECKOUTS = {"corri2p": "I2PBENCH_CORRI2P_CHECKOUT", "cofii2p": "I2PBENCH_COFII2P_CHECKOUT"}
+REPOS = {"corri2p": "rsy6318/CorrI2P", "cofii2p": "WHU-USI3DV/CoFiI2P"}
+
+
+def checkout_of(peer: str) -> Path:
+    checkout = os.environ.get(CHECKOUTS[peer], "")
+    if not checkout:
+        pytest.skip(f"{CHECKOUTS[peer]} is not set: the path of a {REPOS[peer]} checkout")
+    return Path(checkout)
+
+
+@pytest.fixture(scope="module")
+def scratch(tmp_path_factory) -> Path:
+    if not RECORDS.is_dir():
+        pytest.skip(f"{RECORDS} is not present")
+    return tmp_path_factory.mktemp("nuscenes-peers")
+
+
+@pytest.mark.parametrize("peer", ["corri2p", "cofii2p"])
+def test_the_authors_loader_returns_what_i2pbench_hands_the_stages(peer, scratch):
+    checkout = checkout_of(peer)
+    if not (scratch / peer).is_dir():
+        export_both(RECORDS, scratch)
+    result = check(peer, checkout, scratch / peer, scratch)
+    assert [r["index"] for r in result["frames"]] == list(range(10))
+    for row in result["frames"]:
+        assert row["points"] == (40960 if peer == "corri2p" else 20480)
+        for array, tolerance in TOLERANCES.items():
+            assert row[array] <= tolerance, (row["frame"], array, row[array])
+
+
+def test_cofii2ps_build_scripts_write_the_exports_files(scratch):
+    result = check_build(checkout_of("cofii2p"), RECORDS, scratch)
+    assert result["frames"] == 5 and len(result["files"]) == 20
+    assert all(row["diff"] == 0.0 for row in result["files"]), [r for r in result["files"] if r["diff"]]
