@@ -287,15 +287,15 @@ def _run_grid(registry, combinations, dataset, frame_ids, protocols, store, invo
     """run_grid under each protocol in turn, with one progress bar (ETA) over every frame of every combination and
     protocol, cached ones included."""
     import pandas as pd
-    from tqdm import tqdm
 
+    from ..execution.progress import bar as progress_bar
     from ..runs import executors
 
     total = len(frame_ids) * len(combinations) * len(protocols)
     executor = executors.make_executor(args.executor, args.workers, args.threads_per_worker, args.address, args.device)
     what = f"{len(combinations)} combination(s) x {len(frame_ids)} frames"
     what += f" x {len(protocols)} conditions" if len(protocols) > 1 else ""
-    with tqdm(total=total, desc=what, disable=args.quiet, unit="frame", file=sys.stderr, dynamic_ncols=True) as bar:
+    with progress_bar(total, what, disable=args.quiet) as bar:
         grids = [
             _run_protocol(registry, combinations, dataset, frame_ids, p, store, invocation, args, executor, _Bar(bar))
             for p in protocols
