@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import gc
 import importlib
-import math
 import sys
 from collections.abc import Collection, Sequence
 from typing import NoReturn
@@ -83,18 +82,6 @@ def invoked(argv: Sequence[str]) -> tuple[str, ...]:
     return (first,) if first in COMMANDS else ()
 
 
-def check_stage_timeout() -> None:
-    """Read I2PBENCH_STAGE_TIMEOUT_S once, up front: a bad value found deep in a pipeline would be a traceback."""
-    from .execution.timeout import ENV_VAR, timeout_from_env
-
-    try:
-        limit = timeout_from_env()
-    except ValueError as exc:
-        raise I2PBenchError(str(exc)) from None
-    if limit is not None and not 0 < limit < math.inf:
-        raise I2PBenchError(f"{ENV_VAR}={limit:g}: expected a positive number of seconds, or 'none'")
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command. As the program (`argv` None: read sys.argv), freeze the garbage collector when done: the
     collections during interpreter shutdown then skip the objects torch and pandas made, which took 0.5-1 s here only
@@ -116,7 +103,9 @@ def _run(argv: Sequence[str]) -> int:
         set_quiet(True)
     try:
         if args.command in PIPELINE_COMMANDS:
-            check_stage_timeout()
+            from .execution.timeout import check_env
+
+            check_env()
         return importlib.import_module(command_module(args.command)).run(args)
     except I2PBenchError as exc:
         print(f"i2pbench: error: {exc}", file=sys.stderr)
