@@ -1,5 +1,5 @@
 """What plugin authors import: `from i2pbench.api import hookimpl, Extractor2D, ..., Method`; and what a Python
-caller uses: `run`, `evaluate`, `compare` (the commands as calls, also `i2pbench.run` etc.) and the typed
+caller uses: `run`, `evaluate`, `compare`, `score` (the commands as calls, also `i2pbench.run` etc.) and the typed
 results they return (docs/python.md).
 
 Each name is imported from its module on first use: a plugin module that takes only `hookimpl` (its components
@@ -14,7 +14,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from .calls import OptionError, compare, evaluate, run
+    from .calls import OptionError, compare, evaluate, run, score
     from .components import (
         FEATURES2D,
         FEATURES3D,
@@ -44,7 +44,7 @@ if TYPE_CHECKING:
     from .learned import BatchedStage, Device, LearnedComponent, width_mismatch
     from .methods import Method, MethodPreset, Row, Size
     from .metrics.registry import Metric, Scored
-    from .results import CompareResult, EvaluateResult, RunResult
+    from .results import CompareResult, EvaluateResult, RunResult, ScoreResult
     from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
     from .weights import ImportedWeights
 
@@ -90,6 +90,7 @@ __all__ = [
     "Register",
     "Row",
     "RunResult",
+    "ScoreResult",
     "Scored",
     "SensorFrame",
     "Size",
@@ -105,6 +106,7 @@ __all__ = [
     "project",
     "rot_z",
     "run",
+    "score",
     "transform_points",
     "width_mismatch",
 ]
@@ -112,7 +114,7 @@ __all__ = [
 
 # where each name is defined (in i2pbench)
 _MODULES = {
-    "calls": ("OptionError", "compare", "evaluate", "run"),
+    "calls": ("OptionError", "compare", "evaluate", "run", "score"),
     "components": (
         "FEATURES2D",
         "FEATURES3D",
@@ -142,7 +144,7 @@ _MODULES = {
     "learned": ("BatchedStage", "Device", "LearnedComponent", "width_mismatch"),
     "methods": ("Method", "MethodPreset", "Row", "Size"),
     "metrics.registry": ("Metric", "Scored"),
-    "results": ("CompareResult", "EvaluateResult", "RunResult"),
+    "results": ("CompareResult", "EvaluateResult", "RunResult", "ScoreResult"),
     "types": ("Features", "Frame", "Keypoints2D", "Keypoints3D", "Matches", "PoseEstimate", "SensorFrame"),
     "weights": ("ImportedWeights",),
 }

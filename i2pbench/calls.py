@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from .errors import I2PBenchError
-from .results import CompareResult, EvaluateResult, RunResult
+from .results import CompareResult, EvaluateResult, RunResult, ScoreResult
 
 
 class OptionError(I2PBenchError, ValueError):
@@ -52,6 +52,13 @@ def evaluate(run_dir: str | Path, **options: Any) -> EvaluateResult:
 def compare(new: str | Path, baseline: str | Path, **options: Any) -> CompareResult:
     """`i2pbench compare NEW BASELINE`: the regression gate's verdict (`.ok`), without raising on a regression."""
     return _module("compare").execute(namespace("compare", {"new": new, "baseline": baseline}, options))
+
+
+def score(predictions: Any, **options: Any) -> ScoreResult:
+    """`i2pbench score PREDICTIONS`: a DataFrame or file of another code base's poses under cards' rules."""
+    frame = predictions if not isinstance(predictions, (str, Path)) else None
+    args = namespace("score", {"predictions": "-" if frame is not None else predictions}, options)
+    return _module("score").execute(args, frame)
 
 
 def namespace(command: str, positional: Mapping[str, Any], options: Mapping[str, Any]) -> argparse.Namespace:

@@ -1,4 +1,4 @@
-"""What the Python calls (`i2pbench.run`, `evaluate`, `compare`) return: the tables as pandas DataFrames and
+"""What the Python calls (`i2pbench.run`, `evaluate`, `compare`, `score`) return: the tables as pandas DataFrames and
 where they were stored, so a notebook reads no file back. The CLI makes the same objects and prints them."""
 
 from __future__ import annotations
@@ -38,3 +38,12 @@ class CompareResult:
     ok: bool  # no baseline row regressed or went missing
     report: str  # the text `i2pbench compare` prints
     findings: list = field(default_factory=list)  # regression_gate.Finding, one per failed check
+
+
+@dataclass
+class ScoreResult:
+    """Another code base's per-frame predictions scored under protocol cards' rules, as a board."""
+
+    board: pd.DataFrame  # a row per method (and sequence 'all'); per card Acc. and RTE/RRE with their intervals
+    predictions: pd.DataFrame  # the predictions as read and checked, in the documented schema
+    files: list[Path] = field(default_factory=list)
