@@ -125,14 +125,20 @@ def _check_errors(table: pd.DataFrame, source: str) -> None:
 
 
 def from_records(store_records: pd.DataFrame) -> pd.DataFrame:
-    """An i2pbench run's records (`RunResult.records`) in this schema, one method per combination: how a run's
-    poses are handed to another tool, and scored back the way foreign ones are."""
+    """An i2pbench run's records (`RunResult.records`) in this schema, one method per combination and condition
+    (`<combination> [<corruption>:<severity>]` under a corruption): how a run's poses are handed to another tool,
+    and scored back the way foreign ones are."""
     rows = []
     for record in store_records.itertuples(index=False):
         pred = np.asarray(record.T_pred if record.T_pred is not None else np.full(16, np.nan), np.float64).ravel()
         gt = np.asarray(record.T_gt, np.float64).ravel()
         solved = bool(np.isfinite(pred).all())
-        ids = [record.combination, record.sequence, record.frame_id]
+        ids = [method_label(record.combination, getattr(record, "corruption", ""), getattr(record, "severity", 0)),
+               record.sequence, record.frame_id]  # fmt: skip
         rows.append([*ids, *pred, *gt, solved, record.n_matches, record.n_inliers])
     names = ["method", "sequence", "frame_id", *PRED, *GT, "pnp_success", "n_matches", "n_inliers"]
     return pd.DataFrame(rows, columns=names)
+
+
+def method_label(combination: str, corruption: str | None, severity) -> str:
+    return f"{combination} [{corruption}:{int(severity)}]" if corruption else combination
