@@ -29,6 +29,7 @@ class EvaluateResult:
     run_dir: Path
     files: list[Path] = field(default_factory=list)  # written with out=STEM, else none
     notes: list[str] = field(default_factory=list)  # with rules: which cards were scored how, and why not the others
+    by_sequence: pd.DataFrame | None = None  # with by_sequence=True: each row's Acc. and percentiles per sequence
 
 
 @dataclass

@@ -48,6 +48,8 @@ def test_evaluate_returns_the_same_board_from_the_store_and_every_card_under_rul
     again = i2pbench.evaluate(result.run_dir)
     assert isinstance(again, EvaluateResult)
     pd.testing.assert_frame_equal(again.board, result.board)
+    per_sequence = i2pbench.evaluate(result.run_dir, by_sequence=True).by_sequence
+    assert again.by_sequence is None and per_sequence["frames"].iloc[0] == 2
     table = i2pbench.evaluate(result.run_dir, rules="all")
     assert "edgeregnet Acc. (%)" in table.board.columns and table.board["frames"].tolist() == [2]
     assert table.notes[0].startswith("run under")

@@ -70,12 +70,14 @@ def execute(args: argparse.Namespace) -> EvaluateResult:
     result = evaluate(args.run_dir, args.invocation, **thresholds)
     if echo:
         print(leaderboard.to_markdown(result.board))
-    if args.by_sequence and echo:
+    table = None
+    if args.by_sequence:
         from ..scoring.installed import rescored
         from ..scoring.recall import by_sequence
 
         table = by_sequence(rescored(result.records, result.protocol), result.protocol)
-        print("\n" + leaderboard.to_markdown(table, list(table.columns)))
+        if echo:
+            print("\n" + leaderboard.to_markdown(table, list(table.columns)))
     p = result.protocol
     grid = "" if result.expected is None else f" of the grid's {result.expected}"
     note = (
@@ -93,4 +95,4 @@ def execute(args: argparse.Namespace) -> EvaluateResult:
             raise I2PBenchError(f"--out {args.out}: could not write the leaderboard ({exc.strerror or exc})") from None
         if echo:
             print(f"written: {', '.join(str(path) for path in paths)}", file=sys.stderr)
-    return EvaluateResult(result.board, result.records, Path(args.run_dir), paths, [note])
+    return EvaluateResult(result.board, result.records, Path(args.run_dir), paths, [note], table)
