@@ -1,3 +1,4 @@
+import importlib.util
 import os
 from pathlib import Path
 
@@ -26,6 +27,27 @@ def sample(*parts: str) -> Path:
 def needs_sample(*parts: str) -> pytest.MarkDecorator:
     """A skip mark for a whole module or test that reads SAMPLE_DATA/parts."""
     reason = missing_sample(*parts)
+    return pytest.mark.skipif(reason is not None, reason=reason or "")
+
+
+def missing_nuscenes(*parts: str) -> str | None:
+    """Why a test of the nuScenes sample (nuscenes_records/parts) cannot run: the records, or the devkit that reads
+    them (installed by scripts/install.sh, not by the dev extra), are missing; or None."""
+    if importlib.util.find_spec("nuscenes") is None:
+        return "nuscenes-devkit is not installed (scripts/install.sh installs it; docs/datasets.md)"
+    return missing_sample("nuscenes_records", *parts)
+
+
+def nuscenes_sample(*parts: str) -> Path:
+    """SAMPLE_DATA/nuscenes_records/parts, or skip with missing_nuscenes' reason."""
+    reason = missing_nuscenes(*parts)
+    if reason:
+        pytest.skip(reason)
+    return SAMPLE_DATA.joinpath("nuscenes_records", *parts)
+
+
+def needs_nuscenes(*parts: str) -> pytest.MarkDecorator:
+    reason = missing_nuscenes(*parts)
     return pytest.mark.skipif(reason is not None, reason=reason or "")
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import sample
+from conftest import nuscenes_sample
 from test_corruptions import conformance_sensor, scan
 
 from i2pbench.api import Corruption
@@ -355,7 +355,7 @@ SAMPLE = "b5989651183643369174912bc5641d3b"
 
 @pytest.fixture
 def nuscenes_root(tmp_path):
-    records = sample("nuscenes_records")
+    records = nuscenes_sample()
     from i2pbench.data.nuscenes_dataroot import build_dataroot
 
     build_dataroot([records], tmp_path / "nuscenes", "v1.0-trainval")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SAMPLE_DATA, needs_sample
+from conftest import SAMPLE_DATA, needs_nuscenes
 
 from i2pbench.data import nuscenes as nus
 from i2pbench.data.nuscenes import CAMERAS, NuScenes, lidar_to_camera, read_sweep, record_matrix
@@ -23,7 +23,7 @@ RECORDS = SAMPLE_DATA / "nuscenes_records"
 SCENE_DIR = RECORDS / "scene-0916_sample00_b5989651"
 SAMPLE = "b5989651183643369174912bc5641d3b"
 
-pytestmark = needs_sample("nuscenes_records", SCENE_DIR.name)
+pytestmark = needs_nuscenes(SCENE_DIR.name)
 
 
 def _records() -> dict:

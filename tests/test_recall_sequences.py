@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 
 import pandas as pd
-from conftest import sample
+from conftest import nuscenes_sample
 
 from i2pbench.cli import main
 from i2pbench.protocol import Protocol
@@ -80,7 +80,7 @@ def test_a_recorded_sequence_wins_over_the_frame_ids_folder():
 def test_a_nuscenes_frame_belongs_to_its_scene(tmp_path):
     from test_data_nuscenes import SAMPLE, build_dataroot
 
-    sample("nuscenes_records")
+    nuscenes_sample()
 
     from i2pbench.data.nuscenes import NuScenes
 
