@@ -3,6 +3,7 @@ documented CSV score exactly as `evaluate --rules` scores the run; readers for t
 named by file, row and column."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -148,3 +149,16 @@ def test_vp2p_match_error_arrays_saved_beside_each_other(tmp_path):
     assert row["method"] == "vp2p" and row["vp2p-match Acc. (%)"] == "33.33"  # 6 deg and 3 m miss the bar
     np.save(tmp_path / "vp2p_t_error.npy", np.array([0.4, 1.0, np.inf]))  # a failure: the card makes it the identity
     assert i2pbench.score(tmp_path / "vp2p_t_error.npy", rules="vp2p-match").board.iloc[0]["vp2p-match"] == NEEDS_POSES
+
+
+def test_the_documented_example_csv_scores_as_docs_python_md_says(tmp_path):
+    example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "predictions.csv"
+    assert main(["score", str(example), "--out", str(tmp_path / "board")]) == 0
+    board = pd.read_csv(tmp_path / "board.csv", dtype=str, keep_default_na=False)
+    assert board["frames"].tolist() == ["20", "20"]
+    for card in ("edgeregnet", "corri2p", "deepi2p", "vp2p-match"):
+        assert board[f"{card} Acc. (%)"].tolist() == ["10.00", "10.00"], card
+    assert board["cofii2p Acc. (%)"].tolist() == ["100.00", "100.00"]
+    assert board["icl Acc. (%)"].tolist() == ["45.00", "35.00"]
+    lsd = board.set_index("method").loc["lsd > depth+reflectance > oracle > epnp-ransac [intrinsic-error:5]"]
+    assert lsd["edgeregnet RTE (m)"] == "1.20 ± 0.56" and lsd["edgeregnet RRE (°)"] == "6.47 ± 1.23"
