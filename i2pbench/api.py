@@ -1,4 +1,6 @@
-"""What plugin authors import: `from i2pbench.api import hookimpl, Extractor2D, ..., Method`.
+"""What plugin authors import: `from i2pbench.api import hookimpl, Extractor2D, ..., Method`; and what a Python
+caller uses: `run`, `evaluate`, `compare`, `score` (the commands as calls, also `i2pbench.run` etc.) and the typed
+results they return (docs/python.md).
 
 Each name is imported from its module on first use: a plugin module that takes only `hookimpl` (its components
 registered by path) then imports none of the stage contracts, so `i2pbench plugins` stays light, and
@@ -12,6 +14,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from .calls import OptionError, compare, evaluate, run, score
     from .components import (
         FEATURES2D,
         FEATURES3D,
@@ -41,6 +44,7 @@ if TYPE_CHECKING:
     from .learned import BatchedStage, Device, LearnedComponent, width_mismatch
     from .methods import Method, MethodPreset, Row, Size
     from .metrics.registry import Metric, Scored
+    from .results import CompareResult, EvaluateResult, RunResult, ScoreResult
     from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
     from .weights import ImportedWeights
 
@@ -55,6 +59,7 @@ __all__ = [
     "MATCHES",
     "POINTS",
     "BatchedStage",
+    "CompareResult",
     "Component",
     "ConfigError",
     "Corruption",
@@ -62,6 +67,7 @@ __all__ = [
     "Dataset",
     "Device",
     "Encoder2D",
+    "EvaluateResult",
     "Encoder3D",
     "Exchanger",
     "Extractor2D",
@@ -77,23 +83,30 @@ __all__ = [
     "Method",
     "MethodPreset",
     "Metric",
+    "OptionError",
     "PluginError",
     "PoseEstimate",
     "PoseSolver",
     "Register",
     "Row",
+    "RunResult",
+    "ScoreResult",
     "Scored",
     "SensorFrame",
     "Size",
     "StageError",
     "WeightsError",
     "cell_half_diagonal",
+    "compare",
+    "evaluate",
     "ground_truth_matches",
     "hookimpl",
     "in_image",
     "make_transform",
     "project",
     "rot_z",
+    "run",
+    "score",
     "transform_points",
     "width_mismatch",
 ]
@@ -101,6 +114,7 @@ __all__ = [
 
 # where each name is defined (in i2pbench)
 _MODULES = {
+    "calls": ("OptionError", "compare", "evaluate", "run", "score"),
     "components": (
         "FEATURES2D",
         "FEATURES3D",
@@ -130,6 +144,7 @@ _MODULES = {
     "learned": ("BatchedStage", "Device", "LearnedComponent", "width_mismatch"),
     "methods": ("Method", "MethodPreset", "Row", "Size"),
     "metrics.registry": ("Metric", "Scored"),
+    "results": ("CompareResult", "EvaluateResult", "RunResult", "ScoreResult"),
     "types": ("Features", "Frame", "Keypoints2D", "Keypoints3D", "Matches", "PoseEstimate", "SensorFrame"),
     "weights": ("ImportedWeights",),
 }

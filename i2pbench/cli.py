@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import gc
 import importlib
-import math
 import sys
 from collections.abc import Collection, Sequence
 from typing import NoReturn
@@ -28,6 +27,7 @@ COMMANDS = (
     "compare",
     "table",
     "evaluate",
+    "score",
     "viz",
     "report",
     "weights",
@@ -45,6 +45,7 @@ SUMMARIES = {
     "compare": "compare a new leaderboard with a baseline under per-metric tolerances (exit 1 on a regression)",
     "table": "a preset's rows across several datasets' leaderboards, as a paper's table",
     "evaluate": "recompute metrics and the leaderboard from a runs directory, no stage run",
+    "score": "score another code base's per-frame predictions under protocol cards' rules",
     "viz": "draw one frame's LiDAR points under the initial, ground-truth and predicted poses",
     "report": "write a self-contained HTML report of a runs directory (e.g. runs/kitti-all)",
     "weights": "import another code base's checkpoint as an i2pbench checkpoint",
@@ -83,18 +84,6 @@ def invoked(argv: Sequence[str]) -> tuple[str, ...]:
     return (first,) if first in COMMANDS else ()
 
 
-def check_stage_timeout() -> None:
-    """Read I2PBENCH_STAGE_TIMEOUT_S once, up front: a bad value found deep in a pipeline would be a traceback."""
-    from .execution.timeout import ENV_VAR, timeout_from_env
-
-    try:
-        limit = timeout_from_env()
-    except ValueError as exc:
-        raise I2PBenchError(str(exc)) from None
-    if limit is not None and not 0 < limit < math.inf:
-        raise I2PBenchError(f"{ENV_VAR}={limit:g}: expected a positive number of seconds, or 'none'")
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command. As the program (`argv` None: read sys.argv), freeze the garbage collector when done: the
     collections during interpreter shutdown then skip the objects torch and pandas made, which took 0.5-1 s here only
@@ -116,7 +105,9 @@ def _run(argv: Sequence[str]) -> int:
         set_quiet(True)
     try:
         if args.command in PIPELINE_COMMANDS:
-            check_stage_timeout()
+            from .execution.timeout import check_env
+
+            check_env()
         return importlib.import_module(command_module(args.command)).run(args)
     except I2PBenchError as exc:
         print(f"i2pbench: error: {exc}", file=sys.stderr)

@@ -1,15 +1,59 @@
+import importlib.util
+import os
 from pathlib import Path
 
 import pytest
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+# The real KITTI and nuScenes sample frames (README, "Sample data"): ../shared/data beside the checkout, or elsewhere
+SAMPLE_DATA = Path(os.environ.get("I2PBENCH_SAMPLE_DATA") or Path(__file__).resolve().parents[2] / "shared" / "data")
+
+
+def missing_sample(*parts: str) -> str | None:
+    """Why a test needing SAMPLE_DATA/parts cannot run (one line naming the folder and the variable), or None."""
+    path = SAMPLE_DATA.joinpath(*parts)
+    if path.exists():
+        return None
+    return f"sample data not found: {path} (set I2PBENCH_SAMPLE_DATA to the folder holding it)"
+
+
+def sample(*parts: str) -> Path:
+    """SAMPLE_DATA/parts, or skip the calling test (or fixture) with missing_sample's reason."""
+    reason = missing_sample(*parts)
+    if reason:
+        pytest.skip(reason)
+    return SAMPLE_DATA.joinpath(*parts)
+
+
+def needs_sample(*parts: str) -> pytest.MarkDecorator:
+    """A skip mark for a whole module or test that reads SAMPLE_DATA/parts."""
+    reason = missing_sample(*parts)
+    return pytest.mark.skipif(reason is not None, reason=reason or "")
+
+
+def missing_nuscenes(*parts: str) -> str | None:
+    """Why a test of the nuScenes sample (nuscenes_records/parts) cannot run: the records, or the devkit that reads
+    them (installed by scripts/install.sh, not by the dev extra), are missing; or None."""
+    if importlib.util.find_spec("nuscenes") is None:
+        return "nuscenes-devkit is not installed (scripts/install.sh installs it; docs/datasets.md)"
+    return missing_sample("nuscenes_records", *parts)
+
+
+def nuscenes_sample(*parts: str) -> Path:
+    """SAMPLE_DATA/nuscenes_records/parts, or skip with missing_nuscenes' reason."""
+    reason = missing_nuscenes(*parts)
+    if reason:
+        pytest.skip(reason)
+    return SAMPLE_DATA.joinpath("nuscenes_records", *parts)
+
+
+def needs_nuscenes(*parts: str) -> pytest.MarkDecorator:
+    reason = missing_nuscenes(*parts)
+    return pytest.mark.skipif(reason is not None, reason=reason or "")
 
 
 @pytest.fixture
 def shared_data() -> Path:
-    if not SHARED_DATA.exists():
-        pytest.skip("../shared/data is not present")
-    return SHARED_DATA
+    return sample()
 
 
 @pytest.fixture

@@ -4,11 +4,10 @@ margin; every stage is seeded, so the numbers are reproducible."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import SAMPLE_DATA, sample
 
 from i2pbench.diagnostics import edge_diagnostics_grid, summarize_edge_diagnostics
 from i2pbench.metrics.pose import pose_errors
@@ -16,15 +15,14 @@ from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.plugins import default_registry
 from i2pbench.protocol import Protocol
 
-KITTI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_odometry"
+KITTI = SAMPLE_DATA / "kitti_odometry"
 EXTRACTORS_2D = ["lsd", "canny", "sobel", "random"]
 EXTRACTORS_3D = ["depth", "reflectance", "depth+reflectance", "random"]
 
 
 @pytest.fixture(scope="module")
 def frames():
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    sample("kitti_odometry")
     from i2pbench.data.kitti import KittiOdometry
 
     dataset = KittiOdometry("all", {"root": str(KITTI)})

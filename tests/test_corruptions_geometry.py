@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import nuscenes_sample
 from test_corruptions import conformance_sensor, scan
 
 from i2pbench.api import Corruption
@@ -349,17 +350,15 @@ def test_kitti_without_poses_has_no_ego_motion_and_its_files_are_as_before(share
     assert len(dataset.frame_files(frame_id)) == 3  # scan, image, calib: clean cache keys unchanged
 
 
-NUSCENES_RECORDS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nuscenes_records"
 SAMPLE = "b5989651183643369174912bc5641d3b"
 
 
 @pytest.fixture
 def nuscenes_root(tmp_path):
-    if not NUSCENES_RECORDS.is_dir():
-        pytest.skip(f"real nuScenes records not found at {NUSCENES_RECORDS}")
+    records = nuscenes_sample()
     from i2pbench.data.nuscenes_dataroot import build_dataroot
 
-    build_dataroot([NUSCENES_RECORDS], tmp_path / "nuscenes", "v1.0-trainval")
+    build_dataroot([records], tmp_path / "nuscenes", "v1.0-trainval")
     return tmp_path / "nuscenes"
 
 

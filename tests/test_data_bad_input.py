@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import toy_plugin
+from conftest import SAMPLE_DATA, needs_sample
+from conftest import needs_nuscenes as nuscenes_mark
 
 from i2pbench.data.images import read_image
 from i2pbench.data.kitti import read_frame
@@ -22,12 +24,12 @@ from i2pbench.protocol import Protocol
 from i2pbench.runs.runner import run_grid
 from i2pbench.runs.store import ResultsStore
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DATA = SAMPLE_DATA
 KITTI = DATA / "kitti_odometry" / "sequences" / "00"
 RECORDS = DATA / "nuscenes_records"
 SAMPLE = "b5989651183643369174912bc5641d3b"
-needs_kitti = pytest.mark.skipif(not KITTI.is_dir(), reason=f"real KITTI frames not found at {KITTI}")
-needs_nuscenes = pytest.mark.skipif(not RECORDS.is_dir(), reason=f"real nuScenes records not found at {RECORDS}")
+needs_kitti = needs_sample("kitti_odometry", "sequences", "00")
+needs_nuscenes = nuscenes_mark()  # test_issue31_* import it from here
 
 
 def _raises(path: Path, fn, *args) -> str:

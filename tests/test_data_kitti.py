@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SAMPLE_DATA, needs_sample
 
 from i2pbench.data.kitti import KittiOdometry, camera_calib, read_frame
 from i2pbench.data.scanlines import recover_rings, scan_phase
@@ -14,10 +15,10 @@ from i2pbench.errors import DataError
 from i2pbench.geometry import in_image, project
 from i2pbench.plugins import build_registry
 
-KITTI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_odometry"
+KITTI = SAMPLE_DATA / "kitti_odometry"
 IDS = ["00/000000", "00/000001", "00/000002", "00/000003", "00/000004", "01/000000"]
 
-pytestmark = pytest.mark.skipif(not (KITTI / "sequences").is_dir(), reason=f"real KITTI frames not found at {KITTI}")
+pytestmark = needs_sample("kitti_odometry", "sequences")
 
 
 @pytest.fixture(scope="module")

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SAMPLE_DATA, needs_nuscenes
 
 from i2pbench.data import nuscenes as nus
 from i2pbench.data.nuscenes import CAMERAS, NuScenes, lidar_to_camera, read_sweep, record_matrix
@@ -18,11 +19,11 @@ from i2pbench.geometry import in_image, invert, project
 from i2pbench.plugins import build_registry
 from i2pbench.runs.store import ResultsStore
 
-RECORDS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nuscenes_records"
+RECORDS = SAMPLE_DATA / "nuscenes_records"
 SCENE_DIR = RECORDS / "scene-0916_sample00_b5989651"
 SAMPLE = "b5989651183643369174912bc5641d3b"
 
-pytestmark = pytest.mark.skipif(not SCENE_DIR.is_dir(), reason=f"real nuScenes records not found at {RECORDS}")
+pytestmark = needs_nuscenes(SCENE_DIR.name)
 
 
 def _records() -> dict:

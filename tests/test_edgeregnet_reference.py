@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import SAMPLE_DATA
 from i2pbench_edgeregnet import official_import
 from i2pbench_edgeregnet.method import official_stages
 from i2pbench_edgeregnet.official_matching import official_loss, project
@@ -22,12 +23,10 @@ from i2pbench.layers.pointnet2 import ball_query as fast_ball_query
 from i2pbench.layers.pointnet2 import farthest_point_sampling
 from i2pbench.weights import load_checkpoint
 
-FOLDER = Path(
-    os.environ.get("I2PBENCH_EDGEREGNET_REFERENCE")
-    or Path(__file__).resolve().parents[1].parent / "shared" / "data" / "edgeregnet_reference"
-)
+FOLDER = Path(os.environ.get("I2PBENCH_EDGEREGNET_REFERENCE") or SAMPLE_DATA / "edgeregnet_reference")
 pytestmark = pytest.mark.skipif(
-    not (FOLDER / "outputs.npz").is_file(), reason=f"no EdgeRegNet reference vectors at {FOLDER}"
+    not (FOLDER / "outputs.npz").is_file(),
+    reason=f"sample data not found: {FOLDER} (set I2PBENCH_EDGEREGNET_REFERENCE or I2PBENCH_SAMPLE_DATA)",
 )
 INTEGER = ("matches",)
 FLOATS = (

@@ -1,17 +1,17 @@
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import SAMPLE_DATA, needs_sample
 from scipy.spatial.transform import Rotation
 
 from i2pbench.geometry import make_transform, rot_z
 from i2pbench.metrics.pose import pose_errors, summarize
 from i2pbench.protocol import Protocol
 
-VECTORS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "metric_vectors.json"
+VECTORS = SAMPLE_DATA / "metric_vectors.json"
 
 
 def test_yaw_of_90_degrees_gives_rre_90_and_zero_rte():
@@ -50,7 +50,7 @@ def test_failed_solve_has_infinite_errors():
     assert math.isinf(e.rte_m) and math.isinf(e.rre_deg) and math.isinf(e.geodesic_deg)
 
 
-@pytest.mark.skipif(not VECTORS.exists(), reason="shared metric vectors not present")
+@needs_sample("metric_vectors.json")
 def test_shared_metric_vectors():
     cases = json.loads(VECTORS.read_text())["cases"]
     assert len(cases) >= 4

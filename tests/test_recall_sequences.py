@@ -10,6 +10,7 @@ import math
 import re
 
 import pandas as pd
+from conftest import nuscenes_sample
 
 from i2pbench.cli import main
 from i2pbench.protocol import Protocol
@@ -98,6 +99,8 @@ def test_a_recorded_sequence_wins_over_the_frame_ids_folder():
 
 def test_a_nuscenes_frame_belongs_to_its_scene(tmp_path):
     from test_data_nuscenes import SAMPLE, build_dataroot
+
+    nuscenes_sample()
 
     from i2pbench.data.nuscenes import NuScenes
 

@@ -10,11 +10,12 @@ from pathlib import Path
 
 import cv2
 import pytest
+from conftest import SAMPLE_DATA, sample
 
 from i2pbench.cli import main
 from i2pbench.runs.store import ResultsStore
 
-KITTI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_odometry"
+KITTI = SAMPLE_DATA / "kitti_odometry"
 CHROMIUM = next((shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome") if shutil.which(n)), None)
 CHROMIUM_FLAGS = [
     "--headless",
@@ -44,8 +45,7 @@ headers[0].click(); d.setAttribute("data-by-name-desc", firstRow());
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory) -> Path:
     """Two classic combinations over two real KITTI frames (the smallest run with a best and a worst frame)."""
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    sample("kitti_odometry")
     tmp = tmp_path_factory.mktemp("report")
     argv = [
         "run",

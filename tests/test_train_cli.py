@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import SHARED_DATA
+from conftest import sample
 
 from i2pbench.weights import load_checkpoint
 
@@ -35,10 +35,9 @@ def train(shared_data, tmp_path, out, *extra):
 def trained(tmp_path_factory) -> Path:
     """one seeded training run (a.pt, its resume file, log and extractor cache), shared by the tests that compare
     against it or try to resume it: each run is a fresh process that imports torch and builds the pipeline."""
-    if not SHARED_DATA.exists():
-        pytest.skip("../shared/data is not present")
+    data = sample()
     where = tmp_path_factory.mktemp("trained")
-    done = train(SHARED_DATA, where, where / "a.pt")
+    done = train(data, where, where / "a.pt")
     assert done.returncode == 0, done.stderr
     assert "effective batch 2" in done.stderr
     return where

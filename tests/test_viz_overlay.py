@@ -3,11 +3,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
+from conftest import SAMPLE_DATA, sample
 
 from i2pbench.cli import main
 from i2pbench.commands.viz import resolve_frame
@@ -17,7 +16,7 @@ from i2pbench.plugins import default_registry
 from i2pbench.report import draw, overlay
 from i2pbench.testing.frames import kitti_frame, synthetic_frame, with_image
 
-KITTI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_odometry"
+KITTI = SAMPLE_DATA / "kitti_odometry"
 MARK = np.array([255, 0, 255], np.uint8)  # a colour no other drawing uses, on a black canvas
 
 
@@ -46,8 +45,7 @@ def test_hand_worked_projection_lands_on_the_expected_pixels():
 
 
 def test_points_are_drawn_where_geometry_project_puts_them_on_a_real_frame():
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    sample("kitti_odometry")
     frame = kitti_frame(str(KITTI))
     uv, distance, _ = draw.project_points(frame.K, frame.T_gt, frame.points[:, :3], frame.image_size)
     w, h = frame.image_size
@@ -109,8 +107,7 @@ def test_a_failed_pose_leaves_the_predicted_panel_as_the_bare_image():
 @pytest.fixture(scope="module")
 def kitti_viz(tmp_path_factory):
     """`i2pbench viz` on the first real KITTI frame with every panel, run once for the tests below."""
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    sample("kitti_odometry")
     out = tmp_path_factory.mktemp("viz") / "frame.png"
     argv = [
         "viz",
@@ -147,8 +144,7 @@ def test_viz_ground_truth_panel_is_the_projection_under_t_gt(kitti_viz):
 
 
 def test_viz_refuses_more_than_one_combination(capsys):
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    sample("kitti_odometry")
     argv = [
         "viz",
         "0",

@@ -8,6 +8,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..results import CompareResult
 
 EXIT_CODES = "exit status: 0 no regression; 1 a baseline row regressed or is missing; 2 the gate could not run (a "
 EXIT_CODES += "table missing, empty, header-only, binary, ragged or not a leaderboard; a bad --tolerance)"
@@ -40,8 +44,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Errors are I2PBenchErrors, which the CLI prints on one line and turns into exit status 2."""
+    return 0 if execute(args).ok else 1
+
+
+def execute(args: argparse.Namespace) -> CompareResult:
+    """The verdict (the CLI's and `i2pbench.compare`'s one path); the report goes to stdout only for the CLI."""
     from ..boards.regression_gate import compare, format_report, parse_tolerances, read_board
     from ..errors import I2PBenchError
+    from ..results import CompareResult
     from ..runs.board_env import warnings
 
     tolerances = parse_tolerances(args.tolerance)
@@ -52,5 +62,7 @@ def run(args: argparse.Namespace) -> int:
     report = compare(new, base, tolerances, names=names, alpha=args.alpha)
     for line in warnings((args.new, new), (args.baseline, base)):  # once both are judged leaderboards
         print(f"i2pbench: warning: {line}", file=sys.stderr)
-    print(format_report(report))
-    return 0 if report.ok else 1
+    text = format_report(report)
+    if getattr(args, "echo", True):
+        print(text)
+    return CompareResult(report.ok, text, list(report.findings))

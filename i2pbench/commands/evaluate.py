@@ -5,6 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..results import EvaluateResult
 
 THRESHOLDS = {  # option -> (protocol card field, metavar, what it sets)
     "--acc-rre": ("acc_rre_deg", "DEG", "success needs RRE below this"),
@@ -42,36 +46,53 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    execute(args)
+    return 0
+
+
+def execute(args: argparse.Namespace) -> EvaluateResult:
+    """The evaluation `args` describe (the CLI's and `i2pbench.evaluate`'s one path); tables go to stdout only for
+    the CLI (`echo`)."""
     from ..boards import leaderboard
     from ..boards.out_stem import board_stem
     from ..errors import I2PBenchError
+    from ..results import EvaluateResult
     from ..runs import board_env
     from ..runs.evaluate import evaluate
 
+    echo = getattr(args, "echo", True)
     args.out = board_stem(args.out)  # as run's: a device or folder refused, board.csv read as the stem board
     thresholds = {field: getattr(args, field) for field, *_ in THRESHOLDS.values()}
     if args.rules or args.rules_only:
         from .evaluate_rules import run_rules
 
-        return run_rules(args, thresholds)
+        return run_rules(args, thresholds, echo)
     result = evaluate(args.run_dir, args.invocation, **thresholds)
-    print(leaderboard.to_markdown(result.board))
+    if echo:
+        print(leaderboard.to_markdown(result.board))
+    table = None
     if args.by_sequence:
         from ..scoring.installed import rescored
         from ..scoring.recall import by_sequence
 
         table = by_sequence(rescored(result.records, result.protocol), result.protocol)
-        print("\n" + leaderboard.to_markdown(table, list(table.columns)))
+        if echo:
+            print("\n" + leaderboard.to_markdown(table, list(table.columns)))
     p = result.protocol
     grid = "" if result.expected is None else f" of the grid's {result.expected}"
-    print(f"\n{len(result.records)} per-frame records{grid}; success: RRE < {p.acc_rre_deg:g}° and RTE < "
-          f"{p.acc_rte_m:g} m; mean ± std over RRE < {p.filter_rre_deg:g}° and RTE < {p.filter_rte_m:g} m",
-          file=sys.stderr)  # fmt: skip
+    note = (
+        f"{len(result.records)} per-frame records{grid}; success: RRE < {p.acc_rre_deg:g}° and RTE < "
+        f"{p.acc_rte_m:g} m; mean ± std over RRE < {p.filter_rre_deg:g}° and RTE < {p.filter_rte_m:g} m"
+    )
+    if echo:
+        print(f"\n{note}", file=sys.stderr)
+    paths = []
     if args.out:
         try:
             paths = leaderboard.write(result.board, Path(args.out))
             paths.append(board_env.write(Path(args.out), args.run_dir, result.records))
         except OSError as exc:
             raise I2PBenchError(f"--out {args.out}: could not write the leaderboard ({exc.strerror or exc})") from None
-        print(f"written: {', '.join(str(path) for path in paths)}", file=sys.stderr)
-    return 0
+        if echo:
+            print(f"written: {', '.join(str(path) for path in paths)}", file=sys.stderr)
+    return EvaluateResult(result.board, result.records, Path(args.run_dir), paths, [note], table)

@@ -6,10 +6,16 @@ import argparse
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..results import EvaluateResult
 
 
-def run_rules(args: argparse.Namespace, thresholds: dict[str, float | None]) -> int:
+def run_rules(args: argparse.Namespace, thresholds: dict[str, float | None], echo: bool = True) -> EvaluateResult:
+    """The table (printed when `echo`) and where it was written."""
     from ..errors import I2PBenchError
+    from ..results import EvaluateResult
     from ..runs.evaluate import evaluate
     from ..scoring.table import chosen, notes, rules_table, to_markdown
 
@@ -23,8 +29,11 @@ def run_rules(args: argparse.Namespace, thresholds: dict[str, float | None]) -> 
     result = evaluate(args.run_dir, args.invocation)
     table = rules_table(result.records, result.protocol, wanted, args.rules_only)
     markdown = to_markdown(table.table)
-    print(markdown)
-    print("\n" + "\n".join(notes(table, result.protocol)), file=sys.stderr)
+    lines = notes(table, result.protocol)
+    if echo:
+        print(markdown)
+        print("\n" + "\n".join(lines), file=sys.stderr)
+    paths = []
     if args.out:
         stem = Path(args.out)
         try:
@@ -35,7 +44,9 @@ def run_rules(args: argparse.Namespace, thresholds: dict[str, float | None]) -> 
                 tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
                 write(tmp)
                 os.replace(tmp, path)
+                paths.append(path)
         except OSError as exc:
             raise I2PBenchError(f"--out {args.out}: could not write the table ({exc.strerror or exc})") from None
-        print(f"written: {stem}.csv, {stem}.md", file=sys.stderr)
-    return 0
+        if echo:
+            print(f"written: {stem}.csv, {stem}.md", file=sys.stderr)
+    return EvaluateResult(table.table, result.records, Path(args.run_dir), paths, lines)

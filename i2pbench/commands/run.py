@@ -7,7 +7,7 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .options import (
     DEVICE_HELP,
@@ -22,6 +22,9 @@ from .options import (
     split_list,
     stage_choices,
 )
+
+if TYPE_CHECKING:
+    from ..results import RunResult
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -69,6 +72,13 @@ def add_scale_options(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    outcome = execute(args)
+    return outcome if isinstance(outcome, int) else 0
+
+
+def execute(args: argparse.Namespace) -> RunResult | int:
+    """The run `args` describe (the CLI's and `i2pbench.run`'s one path): its result, or after Ctrl-C the exit
+    status, once the finished frames' board is printed."""
     from ..errors import I2PBenchError
     from ..runs.invocation import Invocation
 
@@ -89,8 +99,8 @@ def run(args: argparse.Namespace) -> int:
 
         return stopped(exc, store, invocation, protocols[0])
     stem = Path(args.out or Path(args.runs_dir) / "leaderboards" / board_name(name, args))
-    _publish(args, registry, records, protocols[0], invocation, threads, time.perf_counter() - start, store.root, stem)
-    return 0
+    return _publish(args, registry, records, protocols[0], invocation, threads, time.perf_counter() - start,
+                    store.root, stem)  # fmt: skip
 
 
 def _prepare(args: argparse.Namespace):
@@ -120,22 +130,27 @@ def _prepare(args: argparse.Namespace):
     return registry, combinations, dataset, frame_ids, protocols, threads
 
 
-def _publish(args, registry, records, protocol, invocation, threads: int, wall_s: float, store_root: Path, stem: Path):
-    """The finished run's board: recorded with the invocation, printed with its notes, then written to `stem`."""
+def _publish(args, registry, records, protocol, invocation, threads: int, wall_s: float, store_root: Path,
+             stem: Path) -> RunResult:  # fmt: skip
+    """The finished run's board: recorded with the invocation, printed with its notes (the board on stdout for the
+    CLI, not for a Python caller: `echo`), then written to `stem`."""
     from ..boards import leaderboard
     from ..execution import progress
+    from ..results import RunResult
     from .run_notes import failure_reasons, latency_reused
 
     board = leaderboard.build(records, protocol)
     counts = _summary(records, board, invocation.id, wall_s)
     invocation.finish(**counts)
     progress.note(f"{counts['reused']} of {len(records)} frames reused from the cache in {store_root}")
-    print(leaderboard.to_markdown(board))  # first: a leaderboard that cannot be written is still seen
+    if getattr(args, "echo", True):
+        print(leaderboard.to_markdown(board))  # first: a leaderboard that cannot be written is still seen
     for line in [*failure_reasons(records), *latency_reused(records, invocation.id, threads, args)]:
         progress.note(line)
-    summary = _robustness(registry, board)
+    summary = _robustness(registry, board, getattr(args, "echo", True))
     paths = _write_board(board, records, stem, store_root, summary)
     progress.note(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store_root}")
+    return RunResult(board, records, store_root, paths, invocation.id)
 
 
 def board_name(store_name: str, args: argparse.Namespace) -> str:
@@ -205,15 +220,17 @@ def _protocols(registry, base, args: argparse.Namespace, dataset, frame_ids: lis
     return protocols(registry, base, specs, args.severities, dataset=dataset, frame_ids=frame_ids)
 
 
-def _robustness(registry, board):
-    """The summary per corruption when the board has corrupted rows (printed and written beside it), else None."""
+def _robustness(registry, board, echo: bool = True):
+    """The summary per corruption when the board has corrupted rows (printed when `echo`, written beside the board),
+    else None."""
     from ..boards import leaderboard
 
     if (board["corruption"] == "").all():
         return None
     kinds = {name: registry.corruption(name).kind for name in set(board["corruption"]) if name}
     summary = leaderboard.robustness(board, kinds)
-    print("\n" + leaderboard.to_markdown(summary, list(summary.columns)))
+    if echo:
+        print("\n" + leaderboard.to_markdown(summary, list(summary.columns)))
     return summary
 
 
@@ -287,15 +304,15 @@ def _run_grid(registry, combinations, dataset, frame_ids, protocols, store, invo
     """run_grid under each protocol in turn, with one progress bar (ETA) over every frame of every combination and
     protocol, cached ones included."""
     import pandas as pd
-    from tqdm import tqdm
 
+    from ..execution.progress import bar as progress_bar
     from ..runs import executors
 
     total = len(frame_ids) * len(combinations) * len(protocols)
     executor = executors.make_executor(args.executor, args.workers, args.threads_per_worker, args.address, args.device)
     what = f"{len(combinations)} combination(s) x {len(frame_ids)} frames"
     what += f" x {len(protocols)} conditions" if len(protocols) > 1 else ""
-    with tqdm(total=total, desc=what, disable=args.quiet, unit="frame", file=sys.stderr, dynamic_ncols=True) as bar:
+    with progress_bar(total, what, disable=args.quiet) as bar:
         grids = [
             _run_protocol(registry, combinations, dataset, frame_ids, p, store, invocation, args, executor, _Bar(bar))
             for p in protocols

@@ -293,9 +293,9 @@ class _StepBar:
     """The training's report callable: steps and loss terms on a progress bar, validation results as lines."""
 
     def __init__(self, total: int, initial: int, disable: bool) -> None:
-        from tqdm import tqdm
+        from ..execution.progress import bar
 
-        self.bar = tqdm(total=total, initial=initial, disable=disable, file=sys.stderr, unit="step")
+        self.bar = bar(total, unit="step", initial=initial, disable=disable)
 
     def __call__(self, step: int, terms: dict) -> None:
         if any(k.startswith("val_") for k in terms):

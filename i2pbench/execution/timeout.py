@@ -36,6 +36,21 @@ class StageTimeout(Exception):
         self.seconds = seconds
 
 
+def check_env() -> None:
+    """Read I2PBENCH_STAGE_TIMEOUT_S once, up front (the CLI and `i2pbench.run`): a bad value found deep in a
+    pipeline would be a traceback."""
+    import math
+
+    from ..errors import I2PBenchError
+
+    try:
+        limit = timeout_from_env()
+    except ValueError as exc:
+        raise I2PBenchError(str(exc)) from None
+    if limit is not None and not 0 < limit < math.inf:
+        raise I2PBenchError(f"{ENV_VAR}={limit:g}: expected a positive number of seconds, or 'none'")
+
+
 def timeout_from_env(default: float | None = DEFAULT_TIMEOUT_S) -> float | None:
     """The limit set by I2PBENCH_STAGE_TIMEOUT_S ("none", "off" or "0" disable it), else `default`."""
     value = os.environ.get(ENV_VAR, "").strip().lower()

@@ -78,8 +78,12 @@ def _with_condition(records: pd.DataFrame) -> pd.DataFrame:
 
 
 def _cells(records: pd.DataFrame, card: cards.ProtocolCard) -> dict[str, str]:
-    stats = score(records, card.rules)
-    acc, rte, rre = columns(card.name)
+    return formatted(score(records, card.rules), card.name)
+
+
+def formatted(stats: dict[str, float], name: str) -> dict[str, str]:
+    """A card's three cells as the table shows them, from `score.summarize`'s numbers."""
+    acc, rte, rre = columns(name)
     return {
         acc: "-" if math.isnan(stats["acc_pct"]) else f"{stats['acc_pct']:.2f}",
         rte: _pm(stats["rte_mean"], stats["rte_std"]),

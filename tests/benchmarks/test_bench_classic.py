@@ -15,13 +15,14 @@ import importlib.util
 from pathlib import Path
 
 import pytest
+from conftest import SAMPLE_DATA, sample
 
 from i2pbench.plugins import default_registry
 from i2pbench.protocol import Protocol
 from i2pbench.types import Features
 
 ROOT = Path(__file__).resolve().parents[2]
-KITTI = ROOT.parent / "shared" / "data" / "kitti_odometry"
+KITTI = SAMPLE_DATA / "kitti_odometry"
 EXTRACTORS = [("extractor2d", name) for name in ("lsd", "canny", "sobel", "random")] + [
     ("extractor3d", name) for name in ("depth", "reflectance", "depth+reflectance", "random")
 ]
@@ -29,8 +30,7 @@ EXTRACTORS = [("extractor2d", name) for name in ("lsd", "canny", "sobel", "rando
 
 @pytest.fixture(scope="module")
 def frame():
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    sample("kitti_odometry")
     from i2pbench.data.kitti import KittiOdometry
 
     return Protocol().apply(KittiOdometry("all", {"root": str(KITTI)}).load("00/000000"))

@@ -11,10 +11,10 @@ Time them with: pytest tests/benchmarks/test_bench_harness.py --benchmark-enable
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import pandas as pd
 import pytest
+from conftest import SAMPLE_DATA, sample
 
 from i2pbench.pipeline import Combination
 from i2pbench.plugins import default_registry
@@ -22,15 +22,14 @@ from i2pbench.protocol import Protocol
 from i2pbench.runs.runner import prepare, run_frame, run_job
 from i2pbench.runs.store import ResultsStore
 
-KITTI = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "kitti_odometry"
+KITTI = SAMPLE_DATA / "kitti_odometry"
 REFERENCE = {"extractor2d": "lsd", "extractor3d": "depth+reflectance", "matcher": "oracle", "solver": "epnp-ransac"}
 OVERHEAD_GUARD = 0.15  # fails only on a gross regression; a busy shared machine adds scheduling noise
 
 
 @pytest.fixture(scope="module")
 def kitti():
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    sample("kitti_odometry")
     from i2pbench.data.kitti import KittiOdometry
 
     return KittiOdometry("all", {"root": str(KITTI)})
