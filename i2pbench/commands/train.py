@@ -174,46 +174,6 @@ def _datasets(
     return train_set, val_set, mix
 
 
-def package_folders() -> list[Path]:
-    """the folders of i2pbench and of every installed i2pbench plugin's top-level package: shipped code and
-    weights, which training never writes into."""
-    import importlib.util
-
-    from ..entry_points import installed
-    from ..plugins import ENTRY_POINT_GROUP
-
-    folders = [Path(__file__).resolve().parents[1]]
-    for ep in installed(ENTRY_POINT_GROUP):
-        top = ep.value.split(":")[0].split(".")[0]
-        try:
-            spec = importlib.util.find_spec(top)
-        except (ImportError, ValueError):  # a broken plugin is reported by the registry, not here
-            spec = None
-        folders += [Path(p).resolve() for p in getattr(spec, "submodule_search_locations", None) or []]
-    return folders
-
-
-def check_out(out: Path, force: bool) -> None:
-    """refuse an --out inside an installed package (a shipped checkpoint, the code), and an existing checkpoint that
-    is no training of ours in progress (no `<out>.resume` beside it) unless --force: neither is ever overwritten."""
-    from ..errors import WeightsError
-
-    where = out.resolve()
-    for folder in package_folders():
-        if where.is_relative_to(folder):
-            raise WeightsError(
-                f"--out {out} is inside the installed package {folder}; training never writes there (shipped "
-                "weights and code). Train to another path and copy the result if you mean to ship it"
-            )
-    if out.is_dir():
-        raise WeightsError(f"--out {out} is a folder; give a checkpoint file path (e.g. {out / 'mine.pt'})")
-    if out.exists() and not out.with_name(out.name + ".resume").is_file() and not force:
-        raise WeightsError(
-            f"--out {out} is an existing checkpoint with no resume file ({out.name}.resume) of a training in "
-            "progress; training would overwrite it. Give a new --out, or --force to continue training it in place"
-        )
-
-
 def _combination(registry, args: argparse.Namespace):
     from ..grid import base_combinations, expand, parse_conf_overrides
 
@@ -234,6 +194,8 @@ def _init_2d(pipeline, path: str) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..checkpoint_out import check_out
+
     check_out(Path(args.out), args.force)  # a refused --out or --mix is said before torch loads (seconds)
     mix_specs, val_spec = _source_specs(args)
 

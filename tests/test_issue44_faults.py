@@ -1,0 +1,186 @@
+"""Issue 44's faults on the newer surfaces (checkpoint import, environment records, limits, evaluate, signals): each
+bad input is one clear error naming the file or option, nothing shipped or stored is overwritten or changed, and an
+interrupted run keeps its finished frames and says how it ended."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from test_cli_errors import ROOT
+
+from i2pbench.cli import main
+
+SHIPPED = ROOT / "plugins" / "edgeregnet" / "i2pbench_edgeregnet" / "weights" / "edgeregnet-cpu-synthetic.pt"
+SHAPES = ROOT.parent / "shared" / "data" / "edgeregnet_reference" / "state_dict_shapes.json"
+needs_shapes = pytest.mark.skipif(not SHAPES.is_file(), reason=f"no official state dict shapes at {SHAPES.parent}")
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def cli(capsys, *args: str) -> tuple[int, str]:
+    """`i2pbench ARGS` in this process: (exit status, the one error line or the whole stderr)."""
+    status = main(list(args))
+    err = capsys.readouterr().err
+    assert "Traceback" not in err, err
+    errors = [line for line in err.splitlines() if line.startswith("i2pbench: error:")]
+    return status, errors[0] if len(errors) == 1 else err
+
+
+@pytest.fixture(scope="module")
+def official(tmp_path_factory) -> Path:
+    """a file of the authors' AttentionModule keys and shapes (zeros), as `KITTI.t7` is laid out."""
+    shapes = json.loads(SHAPES.read_text())
+    path = tmp_path_factory.mktemp("official") / "good.t7"
+    torch.save({key: torch.zeros(shape) for key, shape in shapes.items()}, path)
+    return path
+
+
+def _import(capsys, source: Path, out: Path, *extra: str) -> tuple[int, str]:
+    return cli(capsys, "weights", "import", "edgeregnet-official", str(source), "--out", str(out), *extra)
+
+
+@needs_shapes
+def test_weights_import_never_overwrites_a_shipped_checkpoint_its_source_or_another_kind_of_file(
+    official, tmp_path, capsys
+):
+    text = tmp_path / "notes.txt"
+    text.write_text("my notes\n")
+    for out, said in (
+        (SHIPPED, "is inside the installed package"),
+        (official, "is the file being imported"),
+        (text, "exists and is no i2pbench checkpoint (checkpoint " + f"{text} is a text file"),
+    ):
+        before = sha256(out)
+        assert _import(capsys, official, out, "--force") == (2, f"i2pbench: error: --out {out} {said}" + _rest(out))
+        assert sha256(out) == before
+    assert not list(SHIPPED.parent.glob(".*.tmp"))
+
+
+def _rest(out: Path) -> str:
+    """the end of each refusal above, after `--out OUT <what it is>`."""
+    if out == SHIPPED:
+        return (
+            f" {SHIPPED.parent.parent}; the import never writes there (shipped weights and code). Write to another "
+            "path and copy the result if you mean to ship it"
+        )
+    if out.suffix == ".txt":
+        return (
+            ", not an i2pbench checkpoint); the import never overwrites it. Give another --out, or move that file aside"
+        )
+    return "; the import never overwrites its source"
+
+
+@needs_shapes
+def test_weights_import_replaces_its_own_kind_only_with_force_and_errors_name_the_users_path(
+    official, tmp_path, capsys
+):
+    out = tmp_path / "W.pt"
+    assert _import(capsys, official, out)[0] == 0
+    first = sha256(out)
+    assert _import(capsys, official, out) == (
+        2,
+        f"i2pbench: error: --out {out} is an existing checkpoint; the import would replace it. Give a new --out, or "
+        "--force to replace it",
+    )
+    assert sha256(out) == first
+    assert _import(capsys, official, out, "--force")[0] == 0
+    assert sha256(out) != first  # a new date in the record: rewritten
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert _import(capsys, official, blocker / "W.pt") == (
+        2,
+        f"i2pbench: error: checkpoint {blocker / 'W.pt'} could not be written: {blocker}: a file is there where a "
+        "folder is needed",
+    )
+    assert _import(capsys, official, tmp_path) == (
+        2,
+        f"i2pbench: error: --out {tmp_path} is a folder; give a checkpoint file path (e.g. {tmp_path / 'mine.pt'})",
+    )
+
+
+@needs_shapes
+def test_weights_import_refuses_values_that_are_not_finite_floats_and_keys_that_are_not_strings(
+    official, tmp_path, capsys
+):
+    state = torch.load(official, weights_only=True)
+    key = "superpoint.conv1a.weight"  # encoder2d's conv1a.weight, 64 x 1 x 3 x 3 = 576 values
+    nan = state[key].clone()
+    nan[0, 0, 1, 2] = float("nan")
+    bad = {
+        "nan": (nan, "holds 1 NaN or infinite value(s) of 576"),
+        "inf": (torch.full_like(state[key], float("inf")), "holds 576 NaN or infinite value(s) of 576"),
+        "bool": (state[key].bool(), "is bool, not floating point"),
+        "int": (state[key].int(), "is int32, not floating point"),
+        "complex": (state[key].to(torch.complex64), "is complex64, not floating point"),
+    }
+    for name, (value, said) in bad.items():
+        source = tmp_path / f"{name}.t7"
+        torch.save({**state, key: value}, source)
+        assert _import(capsys, source, tmp_path / "W.pt") == (
+            2,
+            f"i2pbench: error: {source}: not finite floating-point weights for encoder2d 'superpoint-official': "
+            f"conv1a.weight {said}",
+        )
+    source = tmp_path / "intkey.t7"
+    torch.save({**state, 5: torch.zeros(1)}, source)
+    assert _import(capsys, source, tmp_path / "W.pt") == (
+        2,
+        f"i2pbench: error: {source}: key 5 (int) is not a parameter name (a string)",
+    )
+    assert not (tmp_path / "W.pt").exists()
+
+
+class _Code:
+    def __reduce__(self):
+        return (print, ("this never runs",))
+
+
+def test_unreadable_sources_say_what_they_are_and_never_advise_running_their_code(tmp_path, capsys):
+    (tmp_path / "empty.t7").write_bytes(b"")
+    (tmp_path / "text.t7").write_text("epoch 1 loss 0.3\n")
+    (tmp_path / "folder.t7").mkdir()
+    torch.save({"conv1a.weight": _Code()}, tmp_path / "code.t7")
+    said = {
+        "empty.t7": "is empty (0 bytes), not a torch file",
+        "text.t7": "is a text file, not a torch file of tensors",
+        "folder.t7": "is a folder, not a file",
+        "code.t7": "is not a readable torch file: it holds Python objects, not only tensors (not a file i2pbench "
+        "wrote), and is not unpickled",
+    }
+    for name, what in said.items():
+        status, error = _import(capsys, tmp_path / name, tmp_path / "W.pt")
+        assert (status, error) == (2, f"i2pbench: error: {tmp_path / name} {what}")
+        assert "weights_only" not in error
+    from i2pbench.errors import WeightsError
+    from i2pbench.weights import load_init
+
+    for name, what in said.items():  # `train --init-2d`'s reader says the same
+        with pytest.raises(WeightsError) as caught:
+            load_init(torch.nn.Linear(1, 1), tmp_path / name)
+        assert str(caught.value) == f"{tmp_path / name} {what}"
+
+
+@needs_shapes
+def test_train_init_2d_with_a_nan_says_so_instead_of_blaming_the_learning_rate(official, tmp_path, capsys):
+    state = torch.load(official, weights_only=True)
+    superpoint = {k.removeprefix("superpoint."): v for k, v in state.items() if k.startswith("superpoint.")}
+    superpoint["convDb.bias"] = torch.full_like(superpoint["convDb.bias"], float("nan"))
+    init = tmp_path / "superpoint_v1.pth"
+    torch.save(superpoint, init)
+    out = tmp_path / "W.pt"
+    status, error = cli(
+        capsys, "train", "--preset", "edgeregnet-official", "--out", str(out), "--init-2d", str(init), "--steps", "1",
+        "--data-root", str(tmp_path / "synthetic"),
+    )  # fmt: skip
+    assert (status, error) == (
+        2,
+        f"i2pbench: error: {init}: not finite floating-point weights for encoder2d 'superpoint-official': "
+        "convDb.bias holds 256 NaN or infinite value(s) of 256",
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["superpoint_v1.pth"]  # no checkpoint, log or data
