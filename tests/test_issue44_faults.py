@@ -184,3 +184,58 @@ def test_train_init_2d_with_a_nan_says_so_instead_of_blaming_the_learning_rate(o
         "convDb.bias holds 256 NaN or infinite value(s) of 256",
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["superpoint_v1.pth"]  # no checkpoint, log or data
+
+
+MALFORMED_RECORDS = {  # .env.json text -> what the warning says is wrong with it
+    "[1, 2]": "is not an environment record: a JSON array, not an object",
+    '{"invocations": "notalist"}': "is not an environment record: 'invocations' is a string, not an array",
+    '[{"environment": "x"}]': "is not an environment record: a JSON array, not an object",
+    '{"invocations": [{"environment": "x"}]}': "is not an environment record: invocations[0].environment is a "
+    "string, not an object",
+    '{"invocations": [{"environment": {"packages": [1]}}]}': "is not an environment record: "
+    "invocations[0].environment.packages is not an object",
+    '{"invocations": [3]}': "is not an environment record: invocations[0] is a number, not an object",
+    "{not json": "is not JSON (JSONDecodeError: Expecting property name enclosed in double quotes: line 1 column 2 "
+    "(char 1))",
+}
+
+
+def test_compare_and_table_warn_on_a_malformed_environment_record_and_never_call_it_a_regression(tmp_path, capsys):
+    from test_compare_environment import _board
+
+    new, base = _board(tmp_path, "new"), _board(tmp_path, "base")
+    record = tmp_path / "base.env.json"
+    for text, problem in MALFORMED_RECORDS.items():
+        record.write_text(text)
+        assert main(["compare", str(new), str(base)]) == 0  # the boards agree: no regression
+        captured = capsys.readouterr()
+        assert "Traceback" not in captured.err
+        assert captured.out.endswith("OK: 1 rows compared, 0 regressed, 0 missing, 0 new\n")
+        assert captured.err.splitlines() == [
+            f"i2pbench: warning: baseline {base}: its environment record {record} {problem}; its package and "
+            "generator versions are unknown, so a difference in them would go unnoticed"
+        ]
+        assert main(["table", "--preset", "classic-oracle", f"KITTI={new}", f"nuScenes={base}"]) == 0
+        assert capsys.readouterr().err.splitlines() == [
+            f"i2pbench: warning: nuScenes {base}: its environment record {record} {problem}; its package and "
+            "generator versions are unknown, so a difference in them would go unnoticed"
+        ]
+
+
+def test_table_warns_as_compare_does_on_boards_from_other_versions(tmp_path, capsys):
+    from test_compare_environment import _board
+
+    kitti, nuscenes = _board(tmp_path, "kitti"), _board(tmp_path, "nus", numpy="2.3.1", generator=6)
+    assert main(["table", "--preset", "classic-oracle", f"KITTI={kitti}", f"nuScenes={nuscenes}"]) == 0
+    assert capsys.readouterr().err.splitlines() == [
+        "i2pbench: warning: the boards come from different numpy versions: 2.4.6 (KITTI) vs 2.3.1 (nuScenes); a "
+        "difference in results may come from it, not from the code",
+        "i2pbench: warning: the boards come from different synthetic generator versions (generator_version): 5 "
+        "(KITTI) vs 6 (nuScenes); a difference in results may come from it, not from the code",
+    ]
+    (tmp_path / "nus.env.json").unlink()
+    assert main(["table", "--preset", "classic-oracle", f"KITTI={kitti}", f"nuScenes={nuscenes}"]) == 0
+    assert capsys.readouterr().err.splitlines() == [
+        f"i2pbench: warning: nuScenes {nuscenes} has no environment record (nus.env.json beside it, or its run's "
+        "store): its package and generator versions are unknown, so a difference in them would go unnoticed"
+    ]
