@@ -239,3 +239,58 @@ def test_table_warns_as_compare_does_on_boards_from_other_versions(tmp_path, cap
         f"i2pbench: warning: nuScenes {nuscenes} has no environment record (nus.env.json beside it, or its run's "
         "store): its package and generator versions are unknown, so a difference in them would go unnoticed"
     ]
+
+
+def _dead_pid() -> int:
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    return int(done.stdout)
+
+
+def _made(root: Path, **frames: int) -> None:
+    """sequences as the generator leaves them, complete (marker written), with `frames` frames each."""
+    from i2pbench.data.synthetic.dataset import MARKER, SPLIT_SEQUENCES, marker
+
+    for split, n in frames.items():
+        sequence = root / "sequences" / SPLIT_SEQUENCES[split]
+        sequence.mkdir(parents=True)
+        (sequence / MARKER).write_text(json.dumps(marker(0, SPLIT_SEQUENCES[split], n)))
+
+
+def test_data_synth_is_bounded_and_sweeps_what_a_killed_generation_left(tmp_path, capsys):
+    import os
+
+    root = tmp_path / "synthetic"
+    for option in ("--train", "--val", "--test"):  # refused by argparse, before any work or memory
+        with pytest.raises(SystemExit) as stop:
+            main(["data", "synth", "--root", str(root), option, "1000000000000"])
+        assert stop.value.code == 2
+        assert f"argument {option}: 1000000000000 frames: a split holds at most 50,000" in capsys.readouterr().err
+    assert not root.exists()
+    _made(root, train=0, val=0, test=0)
+    sequences = root / "sequences"
+    killed, old, live, young = (sequences / name for name in (".00-killed", ".old-noowner", ".01-live", ".02-young"))
+    for folder in (killed, old, live, young):
+        (folder / "00" / "velodyne").mkdir(parents=True)
+    (killed / "owner.pid").write_text(str(_dead_pid()))
+    (live / "owner.pid").write_text(str(os.getpid()))  # a concurrent generation in progress: kept
+    os.utime(old, (0, 0))  # made before owners were recorded, long ago; `young` may be one just starting
+    assert main(["data", "synth", "--root", str(root), "--train", "0", "--val", "0", "--test", "0", "--quiet"]) == 0
+    assert sorted(p.name for p in sequences.iterdir()) == [".01-live", ".02-young", "00", "01", "02"]
+
+
+def test_train_refuses_a_validation_split_with_no_frames_before_writing_anything(tmp_path, capsys):
+    root = tmp_path / "synthetic"
+    _made(root, val=0)
+    out = tmp_path / "w" / "W.pt"
+    status, error = cli(
+        capsys, "train", "--data-root", str(root), "--data-conf", "frames.val=0", "--out", str(out), "--steps", "1"
+    )
+    assert (status, error) == (
+        2,
+        f"i2pbench: error: {root / 'sequences' / '01' / 'velodyne'}: empty sequence (no .bin scans)",
+    )
+    assert not out.parent.exists()  # no checkpoint, resume file or OUT.log.jsonl
+    assert sorted(p.name for p in (root / "sequences").iterdir()) == ["01"]  # the train split was never made

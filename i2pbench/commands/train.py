@@ -174,6 +174,18 @@ def _datasets(
     return train_set, val_set, mix
 
 
+def _check_val(val_set: Dataset | None) -> None:
+    """the validation split read before any step (and its log line): one with no frames is refused now, not at the
+    first validation."""
+    from ..errors import DataError
+
+    if val_set is not None and not val_set.frame_ids():
+        raise DataError(
+            f"validation split {val_set.split!r} of dataset {val_set.name!r} has no frames; give another --val-split, "
+            "or --val-split none to train without validation"
+        )
+
+
 def _combination(registry, args: argparse.Namespace):
     from ..grid import base_combinations, expand, parse_conf_overrides
 
@@ -212,6 +224,7 @@ def run(args: argparse.Namespace) -> int:
     fix_threads(args.threads)
     registry = default_registry()
     train_set, val_set, mix = _datasets(registry, args, mix_specs, val_spec)
+    _check_val(val_set)
     torch.manual_seed(args.seed)  # initial weights: two runs with one seed start (and end) alike
     pipeline = isolated(Pipeline.build(registry, _combination(registry, args)))
     init = _init_2d(pipeline, args.init_2d) if args.init_2d else {}
