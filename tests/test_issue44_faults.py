@@ -294,3 +294,89 @@ def test_train_refuses_a_validation_split_with_no_frames_before_writing_anything
     )
     assert not out.parent.exists()  # no checkpoint, resume file or OUT.log.jsonl
     assert sorted(p.name for p in (root / "sequences").iterdir()) == ["01"]  # the train split was never made
+
+
+DATA = ROOT.parent / "shared" / "data"
+needs_drives = pytest.mark.skipif(
+    not (DATA / "kitti_drives" / "sequences" / "33").is_dir(), reason=f"no real KITTI drives under {DATA}"
+)
+SPLIT = """name: mysplit
+scenes:
+  a: [kitti_drives/33]
+  b: [kitti_drives/30]
+  c: [kitti_drives/39]
+train: [{train}]
+val: [{val}]
+test: [c]
+"""
+
+
+def _run(capsys, runs: Path, *args: str) -> None:
+    assert main(["run", "--dataset", "kitti-drives", "--data-root", str(DATA), "--split", "test", "--preset",
+                 "classic-oracle", "--runs-dir", str(runs), "--quiet", *args]) == 0  # fmt: skip
+    capsys.readouterr()
+
+
+@needs_drives
+def test_evaluate_reads_without_changing_the_store_and_refuses_what_it_cannot_count(tmp_path, capsys):
+    runs = tmp_path / "runs"
+    for train, val in (("a", "b"), ("b", "a")):  # two split files of one name: one store, other data
+        split = tmp_path / f"split-{train}.yaml"
+        split.write_text(SPLIT.format(train=train, val=val))
+        _run(capsys, runs, "--split-file", str(split))
+    store = runs / "kitti-drives-test-mysplit"
+    assert len(list((store / "frames").glob("*.parquet"))) == 4  # the test scene's 2 frames, once per split file
+    status, error = cli(capsys, "evaluate", str(store), "--invocation", "all")
+    assert status == 2 and error.startswith(
+        f"i2pbench: error: {store}: 2 frame(s) of a row are recorded more than once (e.g. frame 39/"
+    )
+    assert "split files with one name:" in error and error.endswith("Evaluate one run's grid with --invocation ID")
+    assert main(["evaluate", str(store)]) == 0  # the last run's grid alone: its 2 frames
+    assert "\n2 per-frame records of the grid's 2;" in capsys.readouterr().err
+    from i2pbench.runs.evaluate import evaluate
+    from i2pbench.runs.invocation import history
+
+    assert set(evaluate(store).records["invocation"]) == {history(store)[-1]["id"]}  # its own, not the other data's
+
+    old = store / "frames" / "0123456789abcdef01234567.parquet"  # a record of an older schema (no pose errors)
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    pq.write_table(pa.Table.from_pylist([{"dataset": "kitti-drives", "frame_id": "39/000000"}]), old)
+    before = {p.name: sha256(p) for p in (store / "frames").iterdir()}
+    assert main(["evaluate", str(store)]) == 0
+    err = capsys.readouterr().err
+    assert f"i2pbench: warning: malformed result {old} (SchemaError: " in err
+    assert "skipped, left as it is (a run sets it aside and computes the frame again)" in err
+    assert {p.name: sha256(p) for p in (store / "frames").iterdir()} == before  # nothing renamed, swept or made
+
+    assert cli(capsys, "evaluate", str(store), "--rules", ",") == (
+        2,
+        "i2pbench: error: --rules ',' names no protocol card; give names (edgeregnet, corri2p, deepi2p, vp2p-match, "
+        "cofii2p, icl) or all",
+    )
+    missing = tmp_path / "runs" / "kitti-drives-tset"
+    assert cli(capsys, "evaluate", str(missing)) == (
+        2,
+        f"i2pbench: error: {missing} does not exist (give a folder `i2pbench run` wrote, such as "
+        "runs/<dataset>-<split>)",
+    )
+    assert not missing.exists()
+
+
+@needs_drives
+def test_report_draws_overlays_for_a_kitti_drives_fold_run(tmp_path, capsys):
+    runs = tmp_path / "runs"
+    _run(capsys, runs, "--fold", "1/5", "--frames", "2")
+    store = runs / "kitti-drives-test-fold1of5"
+    out = tmp_path / "report.html"
+    assert main(["report", str(store), "--overlays", "1", "--out", str(out), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "overlays left out" not in err, err
+    assert out.read_text().count("<img") >= 2  # the best and the worst frame of the top row
+
+    from i2pbench.data.kitti_drives import KittiDrives
+
+    recorded = {"name": "kitti-real-drives", "sha256": "0" * 64}  # the run's split file, since edited
+    with pytest.raises(Exception, match=r"has sha256 [0-9a-f]{12}, not the run's 000000000000: its scenes changed"):
+        KittiDrives("test", {"root": str(DATA), "split_file": recorded})
