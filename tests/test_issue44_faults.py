@@ -380,3 +380,115 @@ def test_report_draws_overlays_for_a_kitti_drives_fold_run(tmp_path, capsys):
     recorded = {"name": "kitti-real-drives", "sha256": "0" * 64}  # the run's split file, since edited
     with pytest.raises(Exception, match=r"has sha256 [0-9a-f]{12}, not the run's 000000000000: its scenes changed"):
         KittiDrives("test", {"root": str(DATA), "split_file": recorded})
+
+
+LAUNCHER = """
+import sys
+sys.path.insert(0, {tests!r})
+if __name__ == "__main__":
+    import stall_always
+    import test_issue31_interrupt
+    from i2pbench import plugins
+    from i2pbench.cli import main
+
+    registry = plugins.build_registry((test_issue31_interrupt.StallPlugin(), stall_always.StallAlwaysPlugin()))
+    plugins.default_registry = lambda: registry
+    sys.exit(main())
+"""
+
+
+def _stopped_run(tmp_path: Path, sig: int, extractor: str, *extra: str):
+    """`i2pbench run` over the 6 KITTI frames with a stalling extractor, sent `sig` once a frame is stored
+    (stall-after-first) or once the first frame started (stall-always): (the finished process, its store)."""
+    import subprocess
+    import sys
+    import time
+
+    from plugin_dists import default_sigint
+    from test_report_html import KITTI
+
+    if not KITTI.is_dir():
+        pytest.skip(f"{KITTI} is not present")
+    launcher, runs = tmp_path / "launch.py", tmp_path / "runs"
+    launcher.write_text(LAUNCHER.format(tests=str(Path(__file__).resolve().parent)))
+    args = ["run", "--dataset", "kitti", "--split", "all", "--data-root", str(KITTI), "--extractor", extractor,
+            "--extractor3d", "depth", "--matcher", "oracle", "--solver", "epnp-ransac", "--runs-dir", str(runs),
+            "--quiet", *extra]  # fmt: skip
+    process = subprocess.Popen(
+        [sys.executable, str(launcher), *args], cwd=tmp_path, text=True, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, preexec_fn=default_sigint,
+    )  # fmt: skip
+    ready = (
+        (lambda: list((runs / "kitti-all" / "frames").glob("*.parquet")))
+        if extractor == "stall-after-first"
+        else (lambda: list(tmp_path.glob("started.*")))
+    )
+    deadline = time.monotonic() + 300  # a guard against a hang, not a timing assertion
+    while not ready():
+        if process.poll() is not None or time.monotonic() > deadline:
+            process.kill()
+            pytest.fail(f"the run ended or hung before it was ready: {process.communicate()[1][-2000:]}")
+        time.sleep(0.05)
+    process.send_signal(sig)
+    out, err = process.communicate(timeout=300)
+    return subprocess.CompletedProcess(process.args, process.returncode, out, err), runs / "kitti-all"
+
+
+def _record(store: Path) -> dict:
+    (record,) = [json.loads(p.read_text()) for p in (store / "invocations").glob("*.json")]
+    return record
+
+
+@pytest.mark.parametrize("workers", [[], ["--workers", "2"]], ids=["serial", "pool"])
+def test_sigterm_stops_a_run_as_ctrl_c_does(tmp_path, workers):
+    import signal
+
+    done, store = _stopped_run(tmp_path, signal.SIGTERM, "stall-after-first", *workers)
+    assert done.returncode == 143, done.stderr  # 128 + SIGTERM, as a shell reports it
+    assert "Traceback" not in done.stderr and "leaked" not in done.stderr, done.stderr  # no resource_tracker warning
+    assert done.stderr.strip().splitlines()[-1] == (
+        f"i2pbench: interrupted (SIGTERM): workers stopped; 1 of 6 frames finished (1 computed by this run), all "
+        f"kept in {store / 'frames'}; the board above is of those; the same command resumes"
+    )
+    assert "| stall-after-first > depth" in done.stdout  # the board of the finished frame
+    assert len(list((store / "frames").glob("*.parquet"))) == 1 and not list((store / "frames").glob(".*.tmp"))
+    record = _record(store)
+    assert record["status"] == "failed" and record["error"] == "interrupted by SIGTERM after 1 of 6 frames"
+
+
+def test_ctrl_c_before_any_frame_finished_claims_no_board(tmp_path):
+    import signal
+
+    done, store = _stopped_run(tmp_path, signal.SIGINT, "stall-always")
+    assert done.returncode == 130, done.stderr
+    assert done.stdout == ""  # no board: nothing finished
+    assert done.stderr.strip().splitlines()[-1] == (
+        "i2pbench: interrupted (Ctrl-C): workers stopped; 0 of 6 frames finished (0 computed by this run), nothing "
+        "to keep; the same command resumes"
+    )
+    assert _record(store)["error"] == "interrupted by Ctrl-C after 0 of 6 frames"
+
+
+def test_ctrl_c_while_the_board_is_written_marks_the_invocation(tmp_path, capsys, monkeypatch):
+    from test_report_html import KITTI
+
+    if not KITTI.is_dir():
+        pytest.skip(f"{KITTI} is not present")
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt  # Ctrl-C as the board's files are written
+
+    monkeypatch.setattr("i2pbench.boards.leaderboard.write", interrupted)
+    runs = tmp_path / "runs"
+    status = main(["run", "--dataset", "kitti", "--split", "all", "--data-root", str(KITTI), "--preset",
+                   "classic-oracle", "--frames", "2", "--runs-dir", str(runs), "--quiet"])  # fmt: skip
+    assert status == 130
+    err = capsys.readouterr().err
+    store = runs / "kitti-all"
+    assert err.strip().splitlines()[-1] == (
+        f"i2pbench: interrupted (Ctrl-C): workers stopped; 2 of 2 frames finished (2 computed by this run), all kept "
+        f"in {store / 'frames'}; the board above is of those; the same command resumes"
+    )
+    record = _record(store)
+    assert record["status"] == "failed" and record["error"] == "interrupted by Ctrl-C after 2 of 2 frames"
+    assert not (runs / "leaderboards").exists() or not list((runs / "leaderboards").glob("*.csv"))

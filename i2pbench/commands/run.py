@@ -89,7 +89,14 @@ def run(args: argparse.Namespace) -> int:
 
         return stopped(exc, store, invocation, protocols[0])
     stem = Path(args.out or Path(args.runs_dir) / "leaderboards" / board_name(name, args))
-    _publish(args, registry, records, protocols[0], invocation, threads, time.perf_counter() - start, store.root, stem)
+    try:
+        _publish(
+            args, registry, records, protocols[0], invocation, threads, time.perf_counter() - start, store.root, stem
+        )
+    except KeyboardInterrupt as exc:  # while the board is built or written: every frame is stored, the record says so
+        from .run_notes import stopped
+
+        return stopped(exc, store, invocation, protocols[0])
     return 0
 
 
