@@ -224,10 +224,10 @@ def run(args: argparse.Namespace) -> int:
     fix_threads(args.threads)
     registry = default_registry()
     train_set, val_set, mix = _datasets(registry, args, mix_specs, val_spec)
-    _check_val(val_set)
     torch.manual_seed(args.seed)  # initial weights: two runs with one seed start (and end) alike
     pipeline = isolated(Pipeline.build(registry, _combination(registry, args)))
     init = _init_2d(pipeline, args.init_2d) if args.init_2d else {}
+    _check_val(val_set)  # after the cheap checks, before a step is logged
     config = train_config(args, str(device))
     if args.epochs is not None:
         world = int(os.environ.get("WORLD_SIZE", 1))
