@@ -362,6 +362,11 @@ def test_evaluate_reads_without_changing_the_store_and_refuses_what_it_cannot_co
         "runs/<dataset>-<split>)",
     )
     assert not missing.exists()
+    board = runs / "leaderboards" / "kitti-drives-test-mysplit-classic-oracle.csv"
+    assert cli(capsys, "evaluate", str(board)) == (
+        2,
+        f"i2pbench: error: {board} is a file, not a folder `i2pbench run` wrote (such as runs/<dataset>-<split>)",
+    )
 
 
 @needs_drives

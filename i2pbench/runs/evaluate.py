@@ -50,6 +50,8 @@ def evaluate(run_dir: str | Path, invocation: str = LAST, **thresholds: float | 
         raise I2PBenchError(
             f"{root} does not exist (give a folder `i2pbench run` wrote, such as runs/<dataset>-<split>)"
         )
+    if not root.is_dir():
+        raise I2PBenchError(f"{root} is a file, not a folder `i2pbench run` wrote (such as runs/<dataset>-<split>)")
     if not (root / "frames").is_dir():
         raise I2PBenchError(f"{root}: no per-frame results here (expected a folder `i2pbench run` wrote, such as "
                             "runs/<dataset>-<split>)")  # fmt: skip
