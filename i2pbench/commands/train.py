@@ -206,7 +206,7 @@ def _init_2d(pipeline, path: str) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..checkpoint_out import check_out
+    from ..weights import check_out
 
     check_out(Path(args.out), args.force)  # a refused --out or --mix is said before torch loads (seconds)
     mix_specs, val_spec = _source_specs(args)
