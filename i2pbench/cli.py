@@ -90,6 +90,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     to free memory the process hands back anyway. atexit handlers and refcount finalizers still run; only garbage in
     reference cycles goes unfinalized, and commands close their files with `with`. In-process callers (tests) pass
     `argv` and keep a normal collector."""
+    if argv is None:  # the program, not a caller that owns its process's signals
+        from .execution.interrupts import stop_on_sigterm
+
+        stop_on_sigterm()
     try:
         return _run(sys.argv[1:] if argv is None else argv)
     finally:
@@ -115,9 +119,12 @@ def _run(argv: Sequence[str]) -> int:
     except OSError as exc:  # the machine's, not a bug (an unwritable HOME or folder, a full disk): the path at fault
         print(f"i2pbench: error: {os_problem(exc)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:  # Ctrl-C outside a run's frames (`run` itself reports what finished): no traceback
-        print("i2pbench: interrupted (Ctrl-C)", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM outside a run's frames (`run` reports what finished): no traceback
+        from .execution.interrupts import stopped_by
+
+        what, status = stopped_by()
+        print(f"i2pbench: interrupted ({what})", file=sys.stderr)
+        return status
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from .errors import WeightsError
+from .errors import WeightsError, os_problem
 from .pipeline import Pipeline, pretrained_sources
 from .provenance import git_commit
 
@@ -82,10 +82,82 @@ class ImportedWeights:
     trained_on: dict[str, Any]  # {"release": "who trained it on what"}, recorded as the checkpoint's training data
     meta: dict[str, Any]  # anything else worth recording (the source's format)
 
+    @staticmethod
+    def read(path: str | Path) -> dict[str, torch.Tensor]:
+        """the state dict in another code base's torch file, for an importer: `read_state_dict`."""
+        return read_state_dict(path)
 
-def import_weights(registry: Any, importer: str, source: str | Path, out: str | Path) -> Path:
+
+def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
+    """A plain state dict (parameter name -> tensor) from a torch file, unwrapped from a `{'state_dict': ...}`, read
+    with `weights_only` (no code in the file runs). A folder, an empty or text file, a pickle of other objects, a key
+    that is no string and a value that is no tensor are refused, naming the file and what is wrong."""
+    import torch
+
+    path = Path(path)
+    if not path.is_file():
+        raise WeightsError(f"{path} is a folder, not a file" if path.is_dir() else f"{path} does not exist")
+    if path.stat().st_size == 0:
+        raise WeightsError(f"{path} is empty (0 bytes), not a torch file")
+    if _is_text(path):
+        raise WeightsError(f"{path} is a text file, not a torch file of tensors")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise WeightsError(f"{path} is not a readable torch file: {_unreadable(exc)}") from None
+    if isinstance(state, dict) and isinstance(state.get("state_dict"), dict):
+        state = state["state_dict"]
+    if not isinstance(state, dict):
+        raise WeightsError(f"{path} holds a {type(state).__name__}, not a state dict of tensors")
+    for key, value in state.items():
+        if not isinstance(key, str):
+            raise WeightsError(f"{path}: key {key!r} ({type(key).__name__}) is not a parameter name (a string)")
+        if not isinstance(value, torch.Tensor):
+            raise WeightsError(f"{path}: {key} is a {type(value).__name__}, not a tensor")
+    return dict(state)
+
+
+def _is_text(path: Path) -> bool:
+    """whether the file starts as text (torch files start with zip or pickle bytes, which are not UTF-8)."""
+    with path.open("rb") as f:
+        head = f.read(1024)
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        return exc.start >= len(head) - 3  # a character cut at the 1024th byte is still text
+    return b"\0" not in head
+
+
+def value_problems(state: dict[str, torch.Tensor], own: dict[str, torch.Tensor]) -> list[str]:
+    """keys whose tensor cannot stand for the stage's own floating one: a bool, integer or complex tensor (loading
+    casts it silently: True becomes 1.0), or one holding NaN or inf (which surfaces only frame by frame)."""
+    import torch
+
+    problems = []
+    for key, value in state.items():
+        if key not in own or not own[key].is_floating_point():
+            continue  # integer buffers (a batch norm's counter) stay integers
+        if not value.is_floating_point():
+            problems.append(f"{key} is {str(value.dtype).removeprefix('torch.')}, not floating point")
+        elif not bool(torch.isfinite(value).all()):
+            bad = int((~torch.isfinite(value)).sum())
+            problems.append(f"{key} holds {bad} NaN or infinite value(s) of {value.numel()}")
+    return problems
+
+
+def _refuse_values(state: dict[str, torch.Tensor], module: torch.nn.Module, source: Path) -> None:
+    problems = value_problems(state, module.state_dict())
+    if problems:
+        shown = "; ".join(problems[:6]) + (f"; and {len(problems) - 6} more" if len(problems) > 6 else "")
+        label = getattr(module, "label", type(module).__name__)
+        raise WeightsError(f"{source}: not finite floating-point weights for {label}: {shown}")
+
+
+def import_weights(registry: Any, importer: str, source: str | Path, out: str | Path, force: bool = False) -> Path:
     """Run a method's importer on `source` and save its weights at `out` as a checkpoint of the importer's size,
-    recording the source file's name and sha256; a state that does not load exactly is refused."""
+    recording the source file's name and sha256; a state that does not load exactly is refused, and so is an `out`
+    that must not be overwritten (`check_out`: a shipped checkpoint, the source, another kind of file; an existing
+    checkpoint without `force`)."""
     import importlib
 
     from .grid import expand
@@ -96,12 +168,14 @@ def import_weights(registry: Any, importer: str, source: str | Path, out: str | 
         raise WeightsError(f"unknown weights importer {importer!r} (known: {known})")
     source = Path(source)
     if not source.is_file():
-        raise WeightsError(f"{source} does not exist")
+        raise WeightsError(f"{source} is a folder, not a file" if source.is_dir() else f"{source} does not exist")
+    check_out(Path(out), force, writer="the import", source=source)
     method = owners[importer]
     module, _, function = method.importers[importer].partition(":")
     imported = getattr(importlib.import_module(module), function)(source)
     pipeline = Pipeline.build(registry, expand([method.row(imported.size)], {}, None, registry)[0])
     for kind, module_ in pipeline.learned_modules().items():
+        _refuse_values(imported.state.get(kind, {}), module_, source)
         try:
             module_.load_state_dict(imported.state[kind])
         except (KeyError, RuntimeError) as exc:
@@ -110,17 +184,78 @@ def import_weights(registry: Any, importer: str, source: str | Path, out: str | 
     return save_checkpoint(out, pipeline, trained_on=imported.trained_on, imported_from=origin)
 
 
+# Where a checkpoint may be written (`train --out`, `weights import --out`): never inside an installed package (shipped
+# weights, code), never over the file it is made from, never over a file that is not a checkpoint, and over an
+# existing checkpoint only when asked (`--force`) or when it is a training of ours in progress.
+
+
+def package_folders() -> list[Path]:
+    """the folders of i2pbench and of every installed i2pbench plugin's top-level package: shipped code and
+    weights, which nothing writes into."""
+    import importlib.util
+
+    from .entry_points import installed
+    from .plugins import ENTRY_POINT_GROUP
+
+    folders = [Path(__file__).resolve().parent]
+    for ep in installed(ENTRY_POINT_GROUP):
+        top = ep.value.split(":")[0].split(".")[0]
+        try:
+            spec = importlib.util.find_spec(top)
+        except (ImportError, ValueError):  # a broken plugin is reported by the registry, not here
+            spec = None
+        folders += [Path(p).resolve() for p in getattr(spec, "submodule_search_locations", None) or []]
+    return folders
+
+
+def check_out(out: Path, force: bool, *, writer: str = "training", source: Path | None = None) -> None:
+    """refuse an --out that `writer` must never overwrite: inside an installed package, the `source` file it reads,
+    a folder, a file that is no i2pbench checkpoint; and an existing checkpoint unless --force (or, for training, a
+    training of ours in progress: `<out>.resume` beside it)."""
+    out = Path(out)
+    where = out.resolve()
+    for folder in package_folders():
+        if where.is_relative_to(folder):
+            raise WeightsError(
+                f"--out {out} is inside the installed package {folder}; {writer} never writes there (shipped "
+                "weights and code). Write to another path and copy the result if you mean to ship it"
+            )
+    if source is not None and out.exists() and os.path.samefile(out, source):
+        raise WeightsError(f"--out {out} is the file being imported; {writer} never overwrites its source")
+    if out.is_dir():
+        raise WeightsError(f"--out {out} is a folder; give a checkpoint file path (e.g. {out / 'mine.pt'})")
+    if not out.exists():
+        return
+    _refuse_another_kind(out, writer)
+    if writer == "training" and out.with_name(out.name + ".resume").is_file():
+        return
+    if not force:
+        would = "training would overwrite it" if writer == "training" else f"{writer} would replace it"
+        resume = f" with no resume file ({out.name}.resume) of a training in progress" if writer == "training" else ""
+        raise WeightsError(
+            f"--out {out} is an existing checkpoint{resume}; {would}. Give a new --out, or --force to "
+            + ("continue training it in place" if writer == "training" else "replace it")
+        )
+
+
+def _refuse_another_kind(out: Path, writer: str) -> None:
+    """an existing --out that is not an i2pbench checkpoint (a text file, someone's data) is never overwritten,
+    --force or not."""
+    try:
+        load_checkpoint(out)
+    except WeightsError as exc:
+        raise WeightsError(
+            f"--out {out} exists and is no i2pbench checkpoint ({exc}); {writer} never overwrites it. Give another "
+            "--out, or move that file aside"
+        ) from None
+
+
 def load_init(module: torch.nn.Module, path: str | Path) -> dict[str, str]:
     """Initialise a learned stage from a plain state dict of its own keys (e.g. Magic Leap's `superpoint_v1.pth` for
     a SuperPoint encoder), strictly: a missing, unexpected or misshaped key is refused by name. -> what to record."""
-    import torch
-
     path = Path(path)
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise WeightsError(f"{path} is not a readable torch file: {exc}") from exc
-    state = state.get("state_dict", state) if isinstance(state, dict) else state
+    state = read_state_dict(path)
+    _refuse_values(state, module, path)
     try:
         module.load_state_dict(state)
     except (RuntimeError, TypeError, AttributeError) as exc:
@@ -161,7 +296,6 @@ def save_checkpoint(path: str | Path, pipeline: Pipeline, **meta: Any) -> Path:
     import torch
 
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     full_meta = {
         "format": FORMAT,
         "stages": stage_signature(pipeline),
@@ -174,6 +308,17 @@ def save_checkpoint(path: str | Path, pipeline: Pipeline, **meta: Any) -> Path:
     state = {k: m.state_dict() for k, m in pipeline.learned_modules().items()}
     meta_text = json.dumps(full_meta)
     payload = {"meta": meta_text, "state": state, "sha256": content_digest(meta_text, state)}
+    try:
+        _write_atomically(payload, path)
+    except OSError as exc:  # errors name the path asked for, not the temp file beside it
+        raise WeightsError(f"checkpoint {path} could not be written: {os_problem(exc)}") from None
+    return path
+
+
+def _write_atomically(payload: dict[str, Any], path: Path) -> None:
+    import torch
+
+    path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
     try:
@@ -183,7 +328,6 @@ def save_checkpoint(path: str | Path, pipeline: Pipeline, **meta: Any) -> Path:
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-    return path
 
 
 def load_checkpoint(path: str | Path) -> Checkpoint:
@@ -197,6 +341,9 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
             raise WeightsError(f"checkpoint {path}: its folder {path.parent} does not exist")
         raise WeightsError(f"checkpoint {path} does not exist")
     stat = path.stat()
+    if stat.st_size == 0 or _is_text(path):
+        what = "empty (0 bytes)" if stat.st_size == 0 else "a text file"
+        raise WeightsError(f"checkpoint {path} is {what}, not an i2pbench checkpoint")
     return _read_checkpoint(path, (stat.st_size, stat.st_mtime_ns, stat.st_ctime_ns))
 
 

@@ -14,12 +14,12 @@ import toy_plugin
 from test_cli_errors import ROOT, assert_refused, i2pbench
 from test_data_bad_input import KITTI, RECORDS, needs_kitti, needs_nuscenes
 
-from i2pbench.commands.train import check_out
 from i2pbench.data.kitti import read_frame
 from i2pbench.data.nuscenes import NuScenes
 from i2pbench.data.nuscenes_dataroot import build_dataroot
 from i2pbench.data.synthetic.dataset import SyntheticStreets
 from i2pbench.errors import DataError, I2PBenchError, WeightsError
+from i2pbench.weights import check_out
 
 
 def _tree(root: Path) -> dict[str, int]:

@@ -422,7 +422,7 @@ def test_a_checkpoint_of_python_objects_is_refused_without_advising_to_unpickle_
 @pytest.mark.parametrize(
     "name, reason",
     [
-        ("empty.pt", "is not a readable i2pbench checkpoint: EOFError (an empty or cut-short file)"),
+        ("empty.pt", "is empty (0 bytes), not an i2pbench checkpoint"),
         ("no-meta.pt", "is not a readable i2pbench checkpoint: no 'meta' entry (a torch file, but not an i2pbench"),
         ("gone/x.pt", ": its folder {folder} does not exist"),
         ("folder", "is a folder, not a checkpoint file"),

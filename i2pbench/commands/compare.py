@@ -1,7 +1,7 @@
 """`i2pbench compare NEW BASELINE`: the regression gate; exits 1 when a baseline row regresses or disappears, 2 when
 it cannot judge (a table that is missing, empty, header-only or malformed), so CI tells a broken gate from a regression.
 It warns on stderr, without failing, when the boards' records (`<stem>.env.json`) name other package or synthetic
-generator versions, or are missing.
+generator versions, or are missing or malformed (a record is never read as a regression).
 """
 
 from __future__ import annotations

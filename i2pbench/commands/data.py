@@ -14,13 +14,18 @@ from . import data_export
 
 
 def frame_count(text: str) -> int:
-    """An argparse type: a split's frame count, 0 or more (`--train -1` made the default 400)."""
+    """An argparse type: a split's frame count, 0 to MAX_FRAMES (`--train -1` made the default 400; a huge count
+    grew memory until the kernel killed the process), refused before any work."""
+    from ..data.synthetic.dataset import MAX_FRAMES
+
     try:
         count = int(text)
     except ValueError:
         count = -1
     if count < 0:
         raise argparse.ArgumentTypeError(f"{text!r} is not 0 or a positive integer")
+    if count > MAX_FRAMES:
+        raise argparse.ArgumentTypeError(f"{text} frames: a split holds at most {MAX_FRAMES:,}")
     return count
 
 

@@ -99,8 +99,13 @@ def execute(args: argparse.Namespace) -> RunResult | int:
 
         return stopped(exc, store, invocation, protocols[0])
     stem = Path(args.out or Path(args.runs_dir) / "leaderboards" / board_name(name, args))
-    return _publish(args, registry, records, protocols[0], invocation, threads, time.perf_counter() - start,
-                    store.root, stem)  # fmt: skip
+    try:
+        return _publish(args, registry, records, protocols[0], invocation, threads, time.perf_counter() - start,
+                        store.root, stem)  # fmt: skip
+    except KeyboardInterrupt as exc:  # while the board is built or written: every frame is stored, the record says so
+        from .run_notes import stopped
+
+        return stopped(exc, store, invocation, protocols[0])
 
 
 def _prepare(args: argparse.Namespace):

@@ -51,31 +51,32 @@ def latency_reused(records, invocation: str, threads: int, args: argparse.Namesp
     ]
 
 
-EXIT_STATUS = 130  # 128 + SIGINT, what a shell reports for a process stopped by Ctrl-C
-
-
 def stopped(exc: KeyboardInterrupt, store: Any, invocation: Any, protocol: Any) -> int:
-    """After Ctrl-C in `run`: mark the invocation failed, print the board of the frames that finished (this
-    invocation's, and the stored ones the grid in progress reused) and one line saying what was kept."""
+    """After Ctrl-C or SIGTERM in `run`: mark the invocation failed, print the board of the frames that finished
+    (this invocation's, and the stored ones the grid in progress reused) and one line saying what was kept; returns
+    the exit status (130 for Ctrl-C, 143 for SIGTERM)."""
     import sys
 
     import pandas as pd
 
     from ..boards import leaderboard
+    from ..execution.interrupts import stopped_by
 
+    what, status = stopped_by()
     records = _finished(getattr(exc, "records", []), store, invocation.id)
     meta = invocation.meta
     total = len(meta.get("frames", [])) * len(meta.get("combinations", [])) * len(meta.get("protocols", [0]))
-    invocation.fail(f"interrupted by Ctrl-C after {len(records)} of {total} frames")
+    invocation.fail(f"interrupted by {what} after {len(records)} of {total} frames")
     if len(records):
         print(leaderboard.to_markdown(leaderboard.build(pd.DataFrame(records), protocol)))
     mine = int((records["invocation"] == invocation.id).sum()) if "invocation" in records else 0
+    kept = f"all kept in {store.frames_dir}; the board above is of those" if len(records) else "nothing to keep"
     print(
-        f"i2pbench: interrupted (Ctrl-C): workers stopped; {len(records)} of {total} frames finished ({mine} computed "
-        f"by this run), all kept in {store.frames_dir}; the board above is of those; the same command resumes",
+        f"i2pbench: interrupted ({what}): workers stopped; {len(records)} of {total} frames finished ({mine} computed "
+        f"by this run), {kept}; the same command resumes",
         file=sys.stderr,
     )
-    return EXIT_STATUS
+    return status
 
 
 def _finished(records: list[dict[str, Any]], store: Any, invocation: str):

@@ -5,6 +5,7 @@ a nuScenes leaderboard of `--preset paper-table-1`."""
 from __future__ import annotations
 
 import argparse
+import sys
 
 
 def _board_spec(value: str) -> tuple[str, str]:
@@ -33,12 +34,15 @@ def run(args: argparse.Namespace) -> int:
     from ..boards.regression_gate import read_board
     from ..errors import I2PBenchError, os_problem
     from ..plugins import default_registry
+    from ..runs.board_env import board_warnings
 
     args.out = board_stem(args.out, (".csv", ".md"))  # a device, pipe or folder refused before any board is read
     names = [name for name, _ in args.boards]
     if len(set(names)) != len(names):
         raise I2PBenchError(f"table: a column group's name is given twice ({', '.join(names)})")
     boards = {name: read_board(path, f"leaderboard of {name}") for name, path in args.boards}
+    for line in board_warnings({name: (path, boards[name]) for name, path in args.boards}):  # as compare warns
+        print(f"i2pbench: warning: {line}", file=sys.stderr)
     rows = paper_table.preset_rows(default_registry(), args.preset)
     table = paper_table.build(rows, boards)
     text = paper_table.to_text(table, rows, dict(args.boards))

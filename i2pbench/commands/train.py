@@ -174,43 +174,15 @@ def _datasets(
     return train_set, val_set, mix
 
 
-def package_folders() -> list[Path]:
-    """the folders of i2pbench and of every installed i2pbench plugin's top-level package: shipped code and
-    weights, which training never writes into."""
-    import importlib.util
+def _check_val(val_set: Dataset | None) -> None:
+    """the validation split read before any step (and its log line): one with no frames is refused now, not at the
+    first validation."""
+    from ..errors import DataError
 
-    from ..entry_points import installed
-    from ..plugins import ENTRY_POINT_GROUP
-
-    folders = [Path(__file__).resolve().parents[1]]
-    for ep in installed(ENTRY_POINT_GROUP):
-        top = ep.value.split(":")[0].split(".")[0]
-        try:
-            spec = importlib.util.find_spec(top)
-        except (ImportError, ValueError):  # a broken plugin is reported by the registry, not here
-            spec = None
-        folders += [Path(p).resolve() for p in getattr(spec, "submodule_search_locations", None) or []]
-    return folders
-
-
-def check_out(out: Path, force: bool) -> None:
-    """refuse an --out inside an installed package (a shipped checkpoint, the code), and an existing checkpoint that
-    is no training of ours in progress (no `<out>.resume` beside it) unless --force: neither is ever overwritten."""
-    from ..errors import WeightsError
-
-    where = out.resolve()
-    for folder in package_folders():
-        if where.is_relative_to(folder):
-            raise WeightsError(
-                f"--out {out} is inside the installed package {folder}; training never writes there (shipped "
-                "weights and code). Train to another path and copy the result if you mean to ship it"
-            )
-    if out.is_dir():
-        raise WeightsError(f"--out {out} is a folder; give a checkpoint file path (e.g. {out / 'mine.pt'})")
-    if out.exists() and not out.with_name(out.name + ".resume").is_file() and not force:
-        raise WeightsError(
-            f"--out {out} is an existing checkpoint with no resume file ({out.name}.resume) of a training in "
-            "progress; training would overwrite it. Give a new --out, or --force to continue training it in place"
+    if val_set is not None and not val_set.frame_ids():
+        raise DataError(
+            f"validation split {val_set.split!r} of dataset {val_set.name!r} has no frames; give another --val-split, "
+            "or --val-split none to train without validation"
         )
 
 
@@ -234,6 +206,8 @@ def _init_2d(pipeline, path: str) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..weights import check_out
+
     check_out(Path(args.out), args.force)  # a refused --out or --mix is said before torch loads (seconds)
     mix_specs, val_spec = _source_specs(args)
 
@@ -253,6 +227,7 @@ def run(args: argparse.Namespace) -> int:
     torch.manual_seed(args.seed)  # initial weights: two runs with one seed start (and end) alike
     pipeline = isolated(Pipeline.build(registry, _combination(registry, args)))
     init = _init_2d(pipeline, args.init_2d) if args.init_2d else {}
+    _check_val(val_set)  # after the cheap checks, before a step is logged
     config = train_config(args, str(device))
     if args.epochs is not None:
         world = int(os.environ.get("WORLD_SIZE", 1))

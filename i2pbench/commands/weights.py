@@ -13,14 +13,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     imp = actions.add_parser("import", help="map a foreign checkpoint's keys onto a method size's stages")
     imp.add_argument("importer", help="importer name, declared by a method (i2pbench plugins lists them)")
     imp.add_argument("source", help="the foreign checkpoint file")
-    imp.add_argument("--out", required=True, help="the i2pbench checkpoint to write (use it with --weights)")
+    imp.add_argument(
+        "--out",
+        required=True,
+        help="the i2pbench checkpoint to write (use it with --weights), outside the installed packages; never the "
+        "source file or a file of another kind",
+    )
+    imp.add_argument("--force", action="store_true", help="replace an existing i2pbench checkpoint at --out")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..plugins import default_registry
     from ..weights import import_weights, load_checkpoint
 
-    path = import_weights(default_registry(), args.importer, args.source, args.out)
+    path = import_weights(default_registry(), args.importer, args.source, args.out, args.force)
     checkpoint = load_checkpoint(path)
     origin = checkpoint.meta["imported_from"]
     print(

@@ -128,6 +128,15 @@ def fold_splits(split_file: SplitFile, fold: int, folds: int) -> dict[str, tuple
     return {"train": tuple(train), "val": tuple(dealt[val]), "test": tuple(dealt[test])}
 
 
+def _recorded_split_file(conf: dict[str, Any] | None) -> tuple[dict[str, Any] | None, str | None]:
+    """a config whose split_file is a run's record of it (`{name, sha256}`, as `identity()` writes it, so a report
+    reopens the run's split) as one naming the file, and the sha256 the file must still have."""
+    recorded = (conf or {}).get("split_file")
+    if not isinstance(recorded, dict) or set(recorded) != {"name", "sha256"}:
+        return conf, None
+    return {**conf, "split_file": recorded["name"]}, recorded["sha256"]
+
+
 class KittiDrives(Dataset):
     """Real KITTI drives from several folders, split by scene by a split file (default: the committed
     kitti-real-drives over ../shared/data's kitti_drives, kitti_real and kitti_odometry); `fold: K/N` for k-fold
@@ -144,10 +153,16 @@ class KittiDrives(Dataset):
     match_radius_px = KittiOdometry.match_radius_px
 
     def __init__(self, split: str, conf: dict[str, Any] | None = None) -> None:
+        conf, recorded = _recorded_split_file(conf)
         super().__init__(split, conf)
         if self.conf["camera"] not in (2, 3):
             raise DataError(f"dataset {self.name!r}: camera must be 2 or 3, got {self.conf['camera']!r}")
         self.split_file = load_split_file(self.conf["split_file"])
+        if recorded is not None and recorded != self.split_file.sha256:
+            raise DataError(
+                f"dataset {self.name!r}: split file {self.split_file.path} has sha256 {self.split_file.sha256[:12]}, "
+                f"not the run's {str(recorded)[:12]}: its scenes changed since the run"
+            )
         self.fold = parse_fold(self.conf["fold"]) if self.conf["fold"] is not None else None
         self._ids: list[str] | None = None
         self._dirs: dict[str, Path] | None = None

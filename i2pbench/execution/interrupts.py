@@ -10,6 +10,7 @@ A run stopped by Ctrl-C prints no traceback: its workers are stopped (the execut
 raise `Interrupted`), every finished frame stays in the store, and `run` says what was kept
 (`i2pbench.commands.run_notes.stopped`); the same command then resumes from the store. Worker processes start with
 SIGINT held (`sigint_held`, `ignore_held_sigint`), so a Ctrl-C while they import is not a traceback of theirs.
+The program takes SIGTERM sent to it as it takes Ctrl-C (`stop_on_sigterm`), exiting with 143 instead of 130.
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ from types import FrameType
 from typing import Any
 
 _count = 0
+_last = signal.SIGINT  # the signal that stopped the command last: SIGINT (Ctrl-C) or SIGTERM
+NAMES = {signal.SIGINT: "Ctrl-C", signal.SIGTERM: "SIGTERM"}
 
 
 def watch() -> int | None:
@@ -42,9 +45,32 @@ def stops_run(exc: BaseException, mark: int | None) -> bool:
 
 
 def _on_sigint(signum: int, frame: FrameType | None) -> None:
-    global _count
+    global _count, _last
     _count += 1
+    _last = signal.SIGINT
     signal.default_int_handler(signum, frame)
+
+
+def stop_on_sigterm() -> None:
+    """SIGTERM (`kill PID`, a scheduler ending a job) stops the command as Ctrl-C does: raised as KeyboardInterrupt
+    in the main thread and counted as the user's, so a run stops its workers, keeps every finished frame and marks
+    its invocation, instead of dying mid-write with its invocation "running" and its semaphores leaked. Only where
+    SIGTERM still has its default action (the program's, not an application's that embeds i2pbench)."""
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, _on_sigterm)
+
+
+def _on_sigterm(signum: int, frame: FrameType | None) -> None:
+    global _count, _last
+    _count += 1
+    _last = signal.SIGTERM
+    raise KeyboardInterrupt
+
+
+def stopped_by() -> tuple[str, int]:
+    """(what stopped the command, its exit status): ("Ctrl-C", 130) or ("SIGTERM", 143), 128 + the signal's number as
+    a shell reports a process the signal ended."""
+    return NAMES[_last], 128 + int(_last)
 
 
 class Interrupted(KeyboardInterrupt):

@@ -50,20 +50,52 @@ def write(stem: str | Path, store_root: str | Path, records: pd.DataFrame) -> Pa
     return path
 
 
+class MalformedRecord(ValueError):
+    """A board's `.env.json` that is not JSON, or JSON of another shape than `record` writes."""
+
+
 def read(board_path: str | Path, board: pd.DataFrame) -> dict[str, Any] | None:
-    """The board's record: its `.env.json` file, else its run's store in the default layout, else None."""
+    """The board's record: its `.env.json` file, else its run's store in the default layout, else None; a file
+    that is not a record of this shape raises MalformedRecord naming it and what is wrong."""
     board_path = Path(board_path)
     sidecar = path_for(board_path)
     if sidecar.is_file():
         try:
-            return json.loads(sidecar.read_text())
-        except (OSError, ValueError):
-            return None
+            found = json.loads(sidecar.read_text())
+        except (OSError, ValueError) as exc:
+            raise MalformedRecord(f"{sidecar} is not JSON ({type(exc).__name__}: {exc})") from None
+        problem = _shape_problem(found)
+        if problem:
+            raise MalformedRecord(f"{sidecar} is not an environment record: {problem}")
+        return found
     store = _store_of(board_path)
     if store is None:
         return None
     found = record(store, _invocations_of(store, board))
     return found if found["invocations"] else None
+
+
+def _shape_problem(rec: Any) -> str | None:
+    """what in a parsed record is not of the shape `record` writes (None: all is), so reading it never fails."""
+    if not isinstance(rec, dict):
+        return f"a JSON {_json_type(rec)}, not an object"
+    invocations = rec.get("invocations", [])
+    if not isinstance(invocations, list):
+        return f"'invocations' is a {_json_type(invocations)}, not an array"
+    for i, inv in enumerate(invocations):
+        if not isinstance(inv, dict):
+            return f"invocations[{i}] is a {_json_type(inv)}, not an object"
+        for field in ("environment", "dataset"):
+            if not isinstance(inv.get(field) or {}, dict):
+                return f"invocations[{i}].{field} is a {_json_type(inv[field])}, not an object"
+        if not isinstance((inv.get("environment") or {}).get("packages") or {}, dict):
+            return f"invocations[{i}].environment.packages is not an object"
+    return None
+
+
+def _json_type(value: Any) -> str:
+    names = {dict: "object", list: "array", str: "string", bool: "boolean", int: "number", float: "number"}
+    return names.get(type(value), "null")
 
 
 def _store_of(board_path: Path) -> Path | None:
@@ -113,19 +145,36 @@ def differences(new: dict[str, Any], base: dict[str, Any]) -> list[tuple[str, se
 
 def warnings(new: tuple[str | Path, pd.DataFrame], base: tuple[str | Path, pd.DataFrame]) -> list[str]:
     """Lines for `i2pbench compare`: each version that differs between the boards, or whose records are missing."""
-    records = {"new leaderboard": (new[0], read(*new)), "baseline": (base[0], read(*base))}
-    unknown = [
-        f"{role} {path} has no environment record ({path_for(path).name} beside it, or its run's store): its package "
-        "and generator versions are unknown, so a difference in them would go unnoticed"
-        for role, (path, rec) in records.items()
-        if rec is None
-    ]
+    return board_warnings({"new leaderboard": new, "baseline": base}, {"new leaderboard": "new"})
+
+
+def board_warnings(
+    boards: dict[str, tuple[str | Path, pd.DataFrame]], short: dict[str, str] | None = None
+) -> list[str]:
+    """Lines for a command reading several boards (by role: `compare`'s new and baseline, `table`'s column groups):
+    each board whose record is missing or malformed, else each version in which a board differs from the first."""
+    short = short or {}
+    records, unknown = {}, []
+    for role, (path, board) in boards.items():
+        try:
+            records[role] = read(path, board)
+        except MalformedRecord as exc:
+            unknown.append(f"{role} {path}: its environment record {exc}; its package and generator versions are "
+                           "unknown, so a difference in them would go unnoticed")  # fmt: skip
+            continue
+        if records[role] is None:
+            unknown.append(
+                f"{role} {path} has no environment record ({path_for(path).name} beside it, or its run's store): its "
+                "package and generator versions are unknown, so a difference in them would go unnoticed"
+            )
     if unknown:
         return unknown
+    first, *others = boards
     return [
-        f"the boards come from different {_what(name)}: {_shown(n)} (new) vs {_shown(b)} (baseline); a difference "
-        "in results may come from it, not from the code"
-        for name, n, b in differences(records["new leaderboard"][1], records["baseline"][1])
+        f"the boards come from different {_what(name)}: {_shown(a)} ({short.get(first, first)}) vs {_shown(b)} "
+        f"({short.get(other, other)}); a difference in results may come from it, not from the code"
+        for other in others
+        for name, a, b in differences(records[first], records[other])
     ]
 
 

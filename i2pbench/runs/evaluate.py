@@ -46,14 +46,21 @@ def evaluate(run_dir: str | Path, invocation: str = LAST, **thresholds: float | 
     """The leaderboard of `invocation`'s grid (or of ALL records) from the store; `thresholds` override the protocol
     card's fields (acc_rre_deg, acc_rte_m, filter_rre_deg, filter_rte_m; None keeps the card's)."""
     root = Path(run_dir)
+    if not root.exists():
+        raise I2PBenchError(
+            f"{root} does not exist (give a folder `i2pbench run` wrote, such as runs/<dataset>-<split>)"
+        )
+    if not root.is_dir():
+        raise I2PBenchError(f"{root} is a file, not a folder `i2pbench run` wrote (such as runs/<dataset>-<split>)")
     if not (root / "frames").is_dir():
         raise I2PBenchError(f"{root}: no per-frame results here (expected a folder `i2pbench run` wrote, such as "
                             "runs/<dataset>-<split>)")  # fmt: skip
-    runs, records = history(root), ResultsStore(root).load()
+    runs, records = history(root), ResultsStore(root, read_only=True).load()  # reading changes nothing
     if records.empty:
         raise I2PBenchError(f"{root}: the store holds no per-frame records")
     expected = None
     if invocation == ALL:
+        _refuse_repeats(records, root)
         card = _single_card(records, runs, root)
     else:
         meta = _invocation(runs, invocation, root)
@@ -129,12 +136,43 @@ def _grid(records: pd.DataFrame, meta: dict[str, Any]) -> pd.DataFrame:
         chosen &= records["weights"].isin({row["weights"] for row in meta["rows"]})
     order = records["combination_key"].map({key: i for i, key in enumerate(keys)}) * len(frames)
     order += records["frame_id"].map({frame: i for i, frame in enumerate(frames)})
-    return records[chosen].assign(_order=order[chosen]).sort_values("_order", kind="stable").drop(columns="_order")
+    grid = records[chosen].assign(_order=order[chosen]).sort_values("_order", kind="stable")
+    return _own_first(grid, meta.get("id")).drop(columns="_order")
+
+
+def _own_first(grid: pd.DataFrame, invocation: str | None) -> pd.DataFrame:
+    """one record per frame of a row: where the store holds several (a run over other data shared the store: split
+    files with one `name:`), the invocation's own, else the latest."""
+    if "invocation" not in grid:
+        return grid
+    own = (grid["invocation"] == invocation).astype(int)
+    ranked = grid.assign(_own=own, _when=grid["invocation"].fillna("").astype(str))
+    ranked = ranked.sort_values(["_order", "_own", "_when"], ascending=[True, False, False], kind="stable")
+    row = [c for c in ("frame_id", "combination_key", "weights", "protocol") if c in grid]
+    return ranked.drop_duplicates(subset=row).drop(columns=["_own", "_when"])
 
 
 def _combination_key(describe: dict[str, dict[str, Any]]) -> str:
     """`Combination.key()` of a combination an invocation describes, without importing the pipeline (and torch)."""
     return hashlib.sha256(json.dumps(describe, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _refuse_repeats(records: pd.DataFrame, root: Path) -> None:
+    """refuse to pool a store where one frame of one row is recorded more than once: runs over other data shared it
+    (split files of one `name:` write to one store), and pooled they would count the frame twice."""
+    row = [c for c in ("dataset", "split", "frame_id", "combination", "weights", "protocol") if c in records]
+    repeated = records[records.duplicated(subset=row, keep=False)]
+    if repeated.empty:
+        return
+    first = repeated.iloc[0]
+    by = sorted({str(i) for i in repeated.get("invocation", pd.Series(dtype=str)).dropna()})
+    runs = f" ({', '.join(by)})" if by else ""
+    raise I2PBenchError(
+        f"{root}: {repeated[row].drop_duplicates().shape[0]} frame(s) of a row are recorded more than once (e.g. "
+        f"frame {first['frame_id']} of {first['combination']}), by runs over other data sharing this store (split "
+        f"files with one name:){runs}; pooled, they would count twice. Evaluate "
+        "one run's grid with --invocation ID"
+    )
 
 
 def _single_card(records: pd.DataFrame, runs: list[dict[str, Any]], root: Path) -> dict[str, Any]:

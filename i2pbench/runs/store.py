@@ -102,12 +102,16 @@ def _pose_problems(table: pa.Table) -> list[str]:
 class ResultsStore:
     """A directory of `frames/<key>.parquet` files, plus `invocations/` (see `runs.invocation`)."""
 
-    def __init__(self, root: str | Path) -> None:
+    def __init__(self, root: str | Path, read_only: bool = False) -> None:
+        """`read_only`: for readers (`evaluate`) that must leave the store as they found it: nothing is made,
+        swept or set aside; an unreadable result is reported and skipped."""
         self.root = Path(root)
         self.frames_dir = self.root / "frames"
-        self.frames_dir.mkdir(parents=True, exist_ok=True)
+        self.read_only = read_only
         self._versions: dict[str, dict[str, set[str]]] = {}  # suffix -> slot -> stored keys, listed on the first put
-        self._sweep_dead_temps()
+        if not read_only:
+            self.frames_dir.mkdir(parents=True, exist_ok=True)
+            self._sweep_dead_temps()
 
     def path(self, key: str) -> Path:
         return self.frames_dir / f"{key}.parquet"
@@ -193,6 +197,10 @@ class ResultsStore:
     def _set_aside(self, path: Path, exc: Exception) -> None:
         aside = path.with_name(path.name + CORRUPT_SUFFIX)
         what = "malformed" if isinstance(exc, SchemaError) else "unreadable"
+        if self.read_only:
+            print(f"i2pbench: warning: {what} result {path} ({type(exc).__name__}: {exc}); skipped, left as it is "
+                  "(a run sets it aside and computes the frame again)", file=sys.stderr)  # fmt: skip
+            return
         print(
             f"i2pbench: warning: {what} result {path} ({type(exc).__name__}: {exc}); "
             f"moved to {aside.name}, it will be recomputed",

@@ -38,7 +38,11 @@ def chosen(names: str) -> list[cards.ProtocolCard]:
     """The cards `--rules` names: comma-separated names, or `all` (every installed card, the default first)."""
     if names == "all":
         return list(installed.installed().values())
-    return [installed.find(name.strip()) for name in names.split(",") if name.strip()]
+    wanted = [installed.find(name.strip()) for name in names.split(",") if name.strip()]
+    if not wanted:
+        known = ", ".join(installed.installed())
+        raise I2PBenchError(f"--rules {names!r} names no protocol card; give names ({known}) or all")
+    return wanted
 
 
 def rules_table(records: pd.DataFrame, protocol: Protocol, wanted: list[cards.ProtocolCard],

@@ -11,6 +11,7 @@ import json
 import os
 import shutil
 import tempfile
+import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
@@ -25,6 +26,8 @@ from .version import GENERATOR_VERSION
 
 SPLIT_SEQUENCES = {"train": "00", "val": "01", "test": "02"}
 MARKER = "synthetic.json"
+MAX_FRAMES = 50_000  # per split: more than all of KITTI Odometry (43,552 frames), about 125 GB of images and scans
+STALE_AFTER_S = 600  # a temp folder with no owner's pid this old is a killed generation's, not one starting up
 
 
 def default_root(seed: int, style: str = "default") -> Path:
@@ -49,7 +52,10 @@ def ensure_sequence(
     An outdated sequence of the same style is replaced; one of another style is refused, not overwritten (each style
     has its own default root, so this only happens when one root is given for two styles).
     """
+    if not 0 <= n_frames <= MAX_FRAMES:
+        raise DataError(f"synthetic sequence {sequence}: {n_frames} frames asked; a split holds 0 to {MAX_FRAMES:,}")
     target = Path(root) / "sequences" / sequence
+    sweep_stale(target.parent)
     wanted = marker(seed, sequence, n_frames, style)
     look = get_style(style)
     found = json.loads((target / MARKER).read_text()) if (target / MARKER).is_file() else None
@@ -68,7 +74,7 @@ def ensure_sequence(
     from .kitti_writer import write_sequence  # the ray caster (open3d) loads only when frames are made
 
     target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{sequence}-", dir=target.parent)) / sequence
+    tmp = _owned_temp(target.parent, f".{sequence}-") / sequence
     try:
         write_sequence(tmp, n_frames, seed, workers, look)
         (tmp / MARKER).write_text(json.dumps(wanted, indent=1) + "\n")
@@ -110,9 +116,43 @@ def _looks_like(root: Path) -> str:
 
 def _retire(target: Path) -> None:
     """Move an outdated sequence aside before deleting it, so readers never see it half-deleted."""
-    trash = Path(tempfile.mkdtemp(prefix=".old-", dir=target.parent))
+    trash = _owned_temp(target.parent, ".old-")
     os.rename(target, trash / target.name)
     shutil.rmtree(trash, ignore_errors=True)
+
+
+def _owned_temp(parent: Path, prefix: str) -> Path:
+    """a hidden temp folder naming this process as its owner, so a later generation can tell a killed one's."""
+    folder = Path(tempfile.mkdtemp(prefix=prefix, dir=parent))
+    (folder / OWNER).write_text(str(os.getpid()))
+    return folder
+
+
+OWNER = "owner.pid"
+
+
+def sweep_stale(sequences: Path) -> None:
+    """delete the hidden temp folders of generations that were killed (their owner process is gone); a live
+    concurrent generation's are left alone."""
+    if not sequences.is_dir():
+        return
+    for folder in sequences.glob(".*-*"):
+        if folder.is_dir() and not _owner_alive(folder):
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+def _owner_alive(folder: Path) -> bool:
+    try:
+        pid = int((folder / OWNER).read_text())
+    except (OSError, ValueError):  # no pid yet (just made) or none ever (made before owners were recorded)
+        return time.time() - folder.stat().st_mtime < STALE_AFTER_S
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's live process
+        return True
+    return True
 
 
 def generate(

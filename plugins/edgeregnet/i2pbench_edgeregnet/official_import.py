@@ -94,21 +94,8 @@ def check(state: Mapping[str, Mapping[str, torch.Tensor]], unknown: list[str], s
         raise WeightsError(f"{source} is not the authors' AttentionModule state dict: {shown}")
 
 
-def read_state(path: Path) -> dict[str, torch.Tensor]:
-    """a state dict from a torch file (tensors only: `weights_only`), unwrapped from a {'state_dict': ...}."""
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise WeightsError(f"{path} is not a readable torch file: {exc}") from exc
-    if isinstance(state, Mapping) and isinstance(state.get("state_dict"), Mapping):
-        state = state["state_dict"]
-    if not isinstance(state, Mapping) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise WeightsError(f"{path} holds no state dict of tensors")
-    return dict(state)
-
-
 def import_official(path: Path) -> ImportedWeights:
     """the authors' `KITTI.t7` (or any state dict of their AttentionModule) as the official size's weights."""
-    state, unknown = split(read_state(path))
+    state, unknown = split(ImportedWeights.read(path))  # tensors only, string keys
     check(state, unknown, str(path))
     return ImportedWeights(SIZE, state, {"release": TRAINED_ON}, {"format": "EdgeRegNet AttentionModule state dict"})
