@@ -8,13 +8,16 @@ of a stage is the time its FLOPs would take at the measured rate of their kernel
 achieved/roofline is that time over the measured one. Uncounted work (elementwise ops, softmax, gathers, the
 farthest point sampling loop) shows as a lower ratio, not as FLOPs. See docs/performance.md.
 
-    .venv/bin/python benchmarks/roofline.py [--preset default|edgeregnet-full] [--device cpu|cuda] [--amp bf16]
+    .venv/bin/python benchmarks/roofline.py [--preset default|edgeregnet-full|edgeregnet-official] [--device cpu|cuda]
+        [--amp bf16] [--clock wall|cpu]
     .venv/bin/python benchmarks/roofline.py --preset edgeregnet-full --device cuda --amp off,bf16   # the GPU check
 
 `--amp off,bf16` measures both precisions in one process, each against the machine's rates in that precision, and
 ends with the per-frame latency of each: on a GPU that is the prepared check of the paper-size frame. `--rounds R`
 repeats the whole measurement (rates and stages) R times and ends with the min and median over the rounds of each
 stage's achieved/matmul ratio, so one slow minute on a shared machine shows as a spread, not as the result.
+`--clock cpu` times rates and stages in this process's CPU seconds instead of wall seconds: on a CPU shared with
+other work a stage waiting for a busy core is then not charged for it.
 """
 
 from __future__ import annotations
@@ -113,7 +116,7 @@ def build_pipeline(preset: str, device: str) -> Pipeline:
     registry = default_registry()
     combination = expand(base_combinations(registry, preset), {}, {}, registry)[0]
     torch.manual_seed(0)
-    return Pipeline.build(registry, combination, timeout_s=None, isolate="thread").to(device).eval()
+    return Pipeline.build(registry, combination, timeout_s=None).to(device).eval()
 
 
 def stage_calls(pipeline: Pipeline, n_keypoints: int) -> dict[str, Callable[[], object]]:
