@@ -21,23 +21,24 @@ from i2pbench_edgeregnet.official_matching import filter_matches
 KEYPOINTS = 3000
 
 
-def stage_runs(stages: dict, frame, kp2d, kp3d) -> dict:
-    """one callable per stage, each fed the previous stage's output (computed once here)."""
+def stage_runs(stages: dict, frame, kp2d, kp3d, device: str = "cpu") -> dict:
+    """one callable per stage on `device` (inputs prepared there), each fed the previous stage's output (computed
+    once here)."""
     enc2d, enc3d, exchanger, matcher = (stages[k] for k in ("encoder2d", "encoder3d", "exchanger", "matcher"))
 
     def batch(d: dict) -> dict:
         return {k: v[None] for k, v in d.items()}
 
     def run2d():
-        return torch.nn.Module.__call__(enc2d, batch(enc2d.prepare(frame, kp2d)))
+        return torch.nn.Module.__call__(enc2d, batch(enc2d.prepare(frame, kp2d, device=device)))
 
     def run3d():
-        return enc3d.forward(batch(enc3d.prepare(frame, kp3d)))
+        return enc3d.forward(batch(enc3d.prepare(frame, kp3d, device=device)))
 
     d2, d3 = run2d(), run3d()
 
     def exchange():
-        return exchanger.forward(batch(exchanger.prepare(frame, kp2d, kp3d)), d2, d3)
+        return exchanger.forward(batch(exchanger.prepare(frame, kp2d, kp3d, device=device)), d2, d3)
 
     g2, g3 = exchange()
 

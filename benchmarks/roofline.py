@@ -8,13 +8,16 @@ of a stage is the time its FLOPs would take at the measured rate of their kernel
 achieved/roofline is that time over the measured one. Uncounted work (elementwise ops, softmax, gathers, the
 farthest point sampling loop) shows as a lower ratio, not as FLOPs. See docs/performance.md.
 
-    .venv/bin/python benchmarks/roofline.py [--preset default|edgeregnet-full] [--device cpu|cuda] [--amp bf16]
+    .venv/bin/python benchmarks/roofline.py [--preset default|edgeregnet-full|edgeregnet-official] [--device cpu|cuda]
+        [--amp bf16] [--clock wall|cpu]
     .venv/bin/python benchmarks/roofline.py --preset edgeregnet-full --device cuda --amp off,bf16   # the GPU check
 
 `--amp off,bf16` measures both precisions in one process, each against the machine's rates in that precision, and
 ends with the per-frame latency of each: on a GPU that is the prepared check of the paper-size frame. `--rounds R`
 repeats the whole measurement (rates and stages) R times and ends with the min and median over the rounds of each
 stage's achieved/matmul ratio, so one slow minute on a shared machine shows as a spread, not as the result.
+`--clock cpu` times rates and stages in this process's CPU seconds instead of wall seconds: on a CPU shared with
+other work a stage waiting for a busy core is then not charged for it.
 """
 
 from __future__ import annotations
@@ -39,6 +42,9 @@ from i2pbench.plugins import default_registry
 
 LEARNED = ("encoder2d", "encoder3d", "exchanger", "matcher")
 KINDS = ("conv", "attention", "matmul")  # what FLOPs are timed against; FlopCounterMode counts nothing else
+# wall seconds, or this process's CPU seconds: on a shared machine these move less with the neighbours' load (a
+# stage's threads waiting for a busy core are not counted), for the stages and the rates alike
+CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
 
 
 def cpu_attention_flops(query, key, value, *args, out_shape=None, **kwargs) -> int:
@@ -55,21 +61,25 @@ def kind_of(op: object) -> str:
     return "conv" if "conv" in name else "attention" if "scaled_dot_product" in name else "matmul"
 
 
-def median_seconds(fn: Callable[[], object], repeat: int, device: str) -> float:
-    """Median wall time of `fn` after one warm-up run, waiting for the device each time."""
+def median_seconds(
+    fn: Callable[[], object], repeat: int, device: str, clock: Callable[[], float] = time.perf_counter
+) -> float:
+    """Median time of `fn` on `clock` after one warm-up run, waiting for the device each time."""
     sync = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
     fn()
     sync()
     times = []
     for _ in range(repeat):
-        start = time.perf_counter()
+        start = clock()
         fn()
         sync()
-        times.append(time.perf_counter() - start)
+        times.append(clock() - start)
     return statistics.median(times)
 
 
-def machine_rates(device: str, repeat: int, dtype: torch.dtype = torch.float32) -> dict[str, float]:
+def machine_rates(
+    device: str, repeat: int, dtype: torch.dtype = torch.float32, clock: Callable[[], float] = time.perf_counter
+) -> dict[str, float]:
     """GFLOP/s of each kernel kind on this device, in `dtype` (what the stages run in under --amp)."""
     n, (h, w) = 2048, (376, 1241)
     a, b = torch.randn(n, n, device=device, dtype=dtype), torch.randn(n, n, device=device, dtype=dtype)
@@ -83,7 +93,7 @@ def machine_rates(device: str, repeat: int, dtype: torch.dtype = torch.float32) 
         "conv": lambda: F.conv2d(image, weight, padding=1),
     }
     with torch.inference_mode():
-        return {kind: flops[kind] / median_seconds(runs[kind], repeat, device) / 1e9 for kind in KINDS}
+        return {kind: flops[kind] / median_seconds(runs[kind], repeat, device, clock) / 1e9 for kind in KINDS}
 
 
 @dataclass
@@ -106,7 +116,7 @@ def build_pipeline(preset: str, device: str) -> Pipeline:
     registry = default_registry()
     combination = expand(base_combinations(registry, preset), {}, {}, registry)[0]
     torch.manual_seed(0)
-    return Pipeline.build(registry, combination, timeout_s=None, isolate="thread").to(device).eval()
+    return Pipeline.build(registry, combination, timeout_s=None).to(device).eval()
 
 
 def stage_calls(pipeline: Pipeline, n_keypoints: int) -> dict[str, Callable[[], object]]:
@@ -132,14 +142,19 @@ def count_flops(call: Callable[[], object], formulas: dict | None = ATTENTION_FO
 
 
 def measure_stages(
-    pipeline: Pipeline, n_keypoints: int, repeat: int, device: str, amp: str = "off"
+    pipeline: Pipeline,
+    n_keypoints: int,
+    repeat: int,
+    device: str,
+    amp: str = "off",
+    clock: Callable[[], float] = time.perf_counter,
 ) -> tuple[list[Stage], int]:
     """Each learned stage's FLOPs and median time, and the FLOPs torch counts on its own (no attention formula);
     `amp` "bf16": the stages run under bfloat16 autocast, as `train --amp bf16` runs them."""
     autocast = torch.autocast(device, dtype=torch.bfloat16) if amp == "bf16" else contextlib.nullcontext()
     with torch.inference_mode(), autocast:
         calls = stage_calls(pipeline, n_keypoints)
-        stages = [Stage(k, count_flops(c), median_seconds(c, repeat, device)) for k, c in calls.items()]
+        stages = [Stage(k, count_flops(c), median_seconds(c, repeat, device, clock)) for k, c in calls.items()]
         uncounted = sum(sum(count_flops(c, formulas=None).values()) for c in calls.values())
     return stages, uncounted
 
@@ -186,9 +201,13 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
     parser.add_argument("--amp", type=amp_modes, default=["off"], help="off, bf16 or off,bf16 (both, in turn)")
     parser.add_argument("--rounds", type=int, default=1, help="whole measurements; >1 ends with their min and median")
+    parser.add_argument("--clock", choices=sorted(CLOCKS), default="wall", help="cpu: this process's CPU seconds")
     args = parser.parse_args()
+    if args.clock == "cpu" and args.device != "cpu":
+        parser.error("--clock cpu times the CPU only: use --device cpu")
     torch.set_num_threads(args.threads)
-    print(f"torch {torch.__version__}, {args.device}, {args.threads} threads, median of {args.repeat}")
+    print(f"torch {torch.__version__}, {args.device}, {args.threads} threads, median of {args.repeat} ({args.clock})")
+    print(f"load average {' '.join(open('/proc/loadavg').read().split()[:3])}")
     pipeline = build_pipeline(args.preset, args.device)
     n_keypoints = pipeline.stages["extractor2d"].conf["max_keypoints"]
     print(f"preset {args.preset}: {pipeline.combination.label}, {n_keypoints} + {n_keypoints} keypoints")
@@ -229,9 +248,10 @@ def run_precision(
 ) -> tuple[list[Stage], dict[str, float]]:
     """One precision's table (rates before and after the stages, in that precision); the stages and the rates."""
     dtype = torch.bfloat16 if amp == "bf16" else torch.float32
-    before = machine_rates(args.device, args.repeat, dtype)
-    stages, uncounted = measure_stages(pipeline, n_keypoints, args.repeat, args.device, amp)
-    rates = print_rates(before, machine_rates(args.device, args.repeat, dtype))
+    clock = CLOCKS[args.clock]
+    before = machine_rates(args.device, args.repeat, dtype, clock)
+    stages, uncounted = measure_stages(pipeline, n_keypoints, args.repeat, args.device, amp, clock)
+    rates = print_rates(before, machine_rates(args.device, args.repeat, dtype, clock))
     print_stages(stages, rates)
     total = sum(s.total for s in stages)
     print(f"\nFlopCounterMode without the CPU attention formula: {uncounted / 1e9:.1f} of {total / 1e9:.1f} GFLOP")

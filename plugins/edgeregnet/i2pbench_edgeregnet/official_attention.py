@@ -38,7 +38,16 @@ class ChannelNorm(nn.BatchNorm1d):
     """BatchNorm1d over the last dim of a channels-last [B x N x C] tensor (the authors' norm on [B x C x N])."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if not self.training:  # one pass over the channels-last tensor, no transposed copies
+            scale, shift = norm_affine(self)
+            return torch.addcmul(shift, x, scale)
         return super().forward(x.transpose(1, 2)).transpose(1, 2)
+
+
+def norm_affine(norm: nn.BatchNorm1d) -> tuple[torch.Tensor, torch.Tensor]:
+    """an eval-mode BatchNorm as y = x * scale + shift."""
+    scale = norm.weight * torch.rsqrt(norm.running_var + norm.eps)
+    return scale, norm.bias - norm.running_mean * scale
 
 
 def mlp(widths: tuple[int, ...]) -> nn.Sequential:
@@ -51,6 +60,25 @@ def mlp(widths: tuple[int, ...]) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
+def run_mlp(layers: nn.Sequential, x: torch.Tensor, groups: int = 1) -> torch.Tensor:
+    """`mlp`'s layers on x [G*B x N x C], G modalities stacked on the batch axis. In eval each Linear + BatchNorm
+    is one Linear with the norm folded in; in training each modality is normalised by its own batch statistics,
+    as the authors' separate calls are."""
+    modules = list(layers)
+    folded = False  # the previous Linear took this norm in
+    for layer, following in zip(modules, [*modules[1:], None], strict=True):
+        if folded:
+            folded = False
+        elif isinstance(layer, nn.Linear) and isinstance(following, ChannelNorm) and not following.training:
+            scale, shift = norm_affine(following)
+            x, folded = F.linear(x, layer.weight * scale[:, None], layer.bias * scale + shift), True
+        elif isinstance(layer, ChannelNorm) and groups > 1:
+            x = torch.cat([layer(part) for part in x.chunk(groups)])
+        else:
+            x = layer(x)
+    return x
+
+
 def normalize_pixels(uv: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     """pixels [... x 2] on a canvas of size (W, H) -> centred and divided by 0.7 of its longer side."""
     w, h = size
@@ -58,7 +86,7 @@ def normalize_pixels(uv: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
 
 
 class AttentionalPropagation(nn.Module):
-    """one GNN layer: x + MLP([x, MultiHeadAttention(x, source)])."""
+    """one tied GNN layer: x + MLP([x, MultiHeadAttention(x, source)]) for the 3D and the 2D side alike."""
 
     def __init__(self, dim: int, heads: int) -> None:
         super().__init__()
@@ -66,12 +94,33 @@ class AttentionalPropagation(nn.Module):
         self.q, self.k, self.v, self.merge = (nn.Linear(dim, dim) for _ in range(4))
         self.mlp = mlp((2 * dim, 2 * dim, dim))
 
-    def forward(self, x: torch.Tensor, source: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-        """x [B x N x D], source [B x M x D], SDPA mask over source or None -> the update [B x N x D]."""
+    def forward(
+        self, d3: torch.Tensor, d2: torch.Tensor, cross: bool, m3: torch.Tensor | None, m2: torch.Tensor | None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """d3 [B x M3 x D], d2 [B x M2 x D], each attending to the other (cross) or to itself, SDPA key masks or
+        None -> the updates of d3 and d2. Sides of one size run as one batch: each tied weight in one product."""
+        if d3.shape != d2.shape:
+            s3, s2, k3, k2 = (d2, d3, m2, m3) if cross else (d3, d2, m3, m2)
+            return self.update(d3, s3, k3), self.update(d2, s2, k2)
+        x = torch.cat([d3, d2])
+        source = x.roll(len(d3), 0) if cross else x  # cross: the other side, batch for batch
+        k3, k2 = (m2, m3) if cross else (m3, m2)
+        mask = None if k3 is None and k2 is None else torch.cat([full_mask(k3, d3), full_mask(k2, d2)])
+        return self.update(x, source, mask, groups=2).chunk(2)
+
+    def update(self, x: torch.Tensor, source: torch.Tensor, mask: torch.Tensor | None, groups: int = 1) -> torch.Tensor:
+        """x [B x N x D], source [B x M x D], SDPA mask over source or None -> MLP([x, message]) [B x N x D]."""
         q, k, v = (p(t).unflatten(-1, (self.heads, -1)).transpose(1, 2) for p, t in zip(
             (self.q, self.k, self.v), (x, source, source), strict=True))  # fmt: skip
         message = F.scaled_dot_product_attention(q, k, v, attn_mask=mask).transpose(1, 2).flatten(2)
-        return self.mlp(torch.cat([x, self.merge(message)], -1))
+        return run_mlp(self.mlp, torch.cat([x, self.merge(message)], -1), groups)
+
+
+def full_mask(mask: torch.Tensor | None, side: torch.Tensor) -> torch.Tensor:
+    """a side's SDPA key mask [B x 1 x 1 x M], all keys where it has none."""
+    if mask is None:
+        return torch.ones(len(side), 1, 1, side.shape[1], dtype=torch.bool, device=side.device)
+    return mask
 
 
 class OfficialAttention(BatchedStage, Exchanger):
@@ -118,13 +167,12 @@ class OfficialAttention(BatchedStage, Exchanger):
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """positions (uv [B x M2 x 2], xyz [B x M3 x 3]), d2 [B x M2 x D], d3 [B x M3 x D], masks [B x M] or None
         -> updated d2, d3; `trace`, when given, receives the positional encodings."""
-        e2, e3 = self.kenc2d(inputs["uv"]), self.kenc3d(inputs["xyz"])
+        e2, e3 = run_mlp(self.kenc2d, inputs["uv"]), run_mlp(self.kenc3d, inputs["xyz"])
         if trace is not None:
             trace.update(enc2d=e2, enc3d=e3)
         d2, d3 = d2.float() + e2, d3.float() + e3
         m2, m3 = key_mask(mask2d), key_mask(mask3d)
         for layer, kind in zip(self.layers, self.conf["layers"], strict=True):
-            s3, s2, k3, k2 = (d3, d2, m3, m2) if kind == "self" else (d2, d3, m2, m3)
-            # two calls, as the authors': in training each modality's batch statistics are its own
-            d3, d2 = d3 + layer(d3, s3, k3), d2 + layer(d2, s2, k2)
+            delta3, delta2 = layer(d3, d2, kind == "cross", m3, m2)
+            d3, d2 = d3 + delta3, d2 + delta2
         return d2, d3

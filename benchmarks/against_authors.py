@@ -1,0 +1,271 @@
+"""An official method timed beside its authors' own code, stage by stage, alternately in one process.
+
+The authors' network is built from the checkout named on the command line (imported from there, never copied), with
+the seeded weights of the method's reference set (its README's recipe) and the same inputs; i2pbench's official size
+gets the same weights through its importer. Before timing, both must reproduce the reference set's recorded tensors
+(so the two timed networks compute one function). Then, per thread count, `--repeat` rounds each run the authors'
+frame and ours, the order swapped every round, each stage timed in wall seconds and in this process's CPU seconds
+(on a shared machine the CPU seconds move much less with the neighbours' load, which is recorded with every frame).
+Prints per stage the medians and ours / authors'.
+
+    .venv/bin/python benchmarks/against_authors.py --method edgeregnet --checkout /work/peers/EdgeRegNet \
+        [--threads 1 2] [--repeat 2] [--keypoints 3000] [--json OUT.json]
+
+A method is one entry of METHODS: a function (checkout, args) -> Pair, the stages both sides split alike, in order.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import os
+import statistics
+import sys
+import time
+import types
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from unittest import mock
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+Stages = dict[str, Callable[[], object]]  # stage name -> a call running it on inputs computed once
+
+
+@dataclass
+class Pair:
+    """the authors' and our stages under common names, in order, and the check that they compute the same."""
+
+    authors: Stages
+    ours: Stages
+    check: Callable[[], dict[str, float]]  # -> {name: error against the reference}, run before any timing
+
+
+def load_average() -> str:
+    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
+
+
+def time_stages(stages: Stages) -> dict[str, tuple[float, float]]:
+    """each stage's (wall s, CPU s of this process), in order."""
+    out = {}
+    for name, call in stages.items():
+        wall, cpu = time.perf_counter(), time.process_time()
+        call()
+        out[name] = (time.perf_counter() - wall, time.process_time() - cpu)
+    return out
+
+
+def measure(pair: Pair, threads: int, repeat: int) -> dict:
+    """`repeat` rounds at `threads` threads, authors' and ours alternately; every frame with the load before it."""
+    torch.set_num_threads(threads)
+    frames: dict[str, list] = {"authors": [], "ours": []}
+    for r in range(repeat):
+        order = ("authors", "ours") if r % 2 == 0 else ("ours", "authors")
+        for side in order:
+            load = load_average()
+            with torch.inference_mode():
+                times = time_stages(getattr(pair, side))
+            frames[side].append({"load": load, "stages": times})
+            total = sum(c for _, c in times.values())
+            print(f"  {threads} thread(s) round {r + 1} {side:7s} CPU {total:6.2f} s, load {load}", flush=True)
+    return frames
+
+
+def medians(frames: list[dict], column: int) -> dict[str, float]:
+    names = list(frames[0]["stages"])
+    out = {n: statistics.median(f["stages"][n][column] for f in frames) for n in names}
+    out["frame"] = statistics.median(sum(t[column] for t in f["stages"].values()) for f in frames)
+    return out
+
+
+def print_table(threads: int, frames: dict[str, list]) -> dict:
+    """per stage: authors' and our median wall and CPU seconds and their ratios; returns the same as a dict."""
+    table = {}
+    print(f"\n{threads} thread(s), median of {len(frames['ours'])}: seconds (wall / CPU of this process)")
+    print(f"{'stage':12s} {'authors':>15s} {'ours':>15s} {'ours/authors':>16s}")
+    walls = {side: medians(f, 0) for side, f in frames.items()}
+    cpus = {side: medians(f, 1) for side, f in frames.items()}
+    for name in walls["ours"]:
+        a, o = (walls["authors"][name], cpus["authors"][name]), (walls["ours"][name], cpus["ours"][name])
+        ratio = (o[0] / a[0], o[1] / a[1])
+        table[name] = {"authors": a, "ours": o, "ratio": ratio}
+        print(f"{name:12s} {a[0]:7.2f} {a[1]:7.2f} {o[0]:7.2f} {o[1]:7.2f} {ratio[0]:7.2f}x {ratio[1]:7.2f}x")
+    return table
+
+
+# ---- EdgeRegNet: models/cali_glue.py AttentionModule of ESRSchao/EdgeRegNet
+
+
+def import_authors_edgeregnet(checkout: Path) -> types.ModuleType:
+    """their models.cali_glue, imported from the checkout. It imports torchvision without using it (an empty
+    module stands in where torchvision is not installed) and turns on autograd's anomaly detection at import,
+    which is turned off again: it would slow our side too."""
+    if not (checkout / "models" / "cali_glue.py").is_file():
+        raise SystemExit(f"{checkout}: no models/cali_glue.py; --checkout must be an EdgeRegNet checkout")
+    try:
+        import torchvision  # noqa: F401
+    except ImportError:
+        sys.modules["torchvision"] = types.SimpleNamespace(models=None)  # type: ignore[assignment]
+    sys.path.insert(0, str(checkout))
+    try:
+        from models import cali_glue
+    finally:
+        sys.path.remove(str(checkout))
+    torch.autograd.set_detect_anomaly(False)
+    return cali_glue
+
+
+def authors_edgeregnet(cali_glue: types.ModuleType, state: dict[str, torch.Tensor]) -> torch.nn.Module:
+    """their AttentionModule with `state`. Its SuperPoint loads Magic Leap's file at construction (not in the
+    checkout); it is handed the state's own SuperPoint part instead, which load_state_dict sets anyway."""
+    superpoint = {k.removeprefix("superpoint."): v for k, v in state.items() if k.startswith("superpoint.")}
+    with mock.patch.object(torch, "load", lambda *args, **kwargs: superpoint), mock.patch("builtins.print"):
+        model = cali_glue.AttentionModule()
+    model.load_state_dict(state)
+    return model.eval()
+
+
+def authors_stages(model: torch.nn.Module, cali_glue: types.ModuleType, inputs: dict[str, np.ndarray]) -> Stages:
+    """AttentionModule.forward (cali_glue.py:205-261) cut where ours is: image, points, attention, assignment;
+    each stage fed the previous ones' outputs, computed once."""
+    xyz = torch.from_numpy(inputs["xyz"])[None]
+    image = torch.from_numpy((inputs["canvas"] / 255 - 0.485) / 0.229).float()[None, None]
+    kp3d = torch.from_numpy(inputs["kp3d"]).float()[None].permute(0, 2, 1)
+    kp2d = torch.from_numpy(inputs["kp2d"].astype(np.float32))[None]
+
+    def image_stage():
+        return torch.stack(model.superpoint(image, kp2d)[2])
+
+    def point_stage():
+        l1_xyz, l1_points = model.sa1(xyz.permute(0, 2, 1)[:, :3], xyz.permute(0, 2, 1))
+        l2_xyz, l2_points = model.sa2(l1_xyz, l1_points)
+        return model.fp(kp3d[:, :3], l2_xyz, kp3d, l2_points)
+
+    des2d, des3d = image_stage(), point_stage()
+
+    def attention_stage(d3=des3d, d2=des2d):
+        h, w = image.shape[2:]
+        d3 = d3 + model.kenc3d(kp3d[:, :3])
+        d2 = d2 + model.kenc2d(cali_glue.normalize_coords(kp2d, w, h))
+        return model.gnn(d3, d2)
+
+    g3, g2 = attention_stage()
+
+    def assignment_stage():
+        des3d, des2d = model.feature_layer(g3), model.feature_layer(g2)
+        fov = model.pc_score_layer(g3)
+        scores = model.log_assignment(des3d.transpose(1, 2), des2d.transpose(1, 2))[0]
+        return cali_glue.filter_matches(scores, 0.0), fov
+
+    stages = {"image": image_stage, "points": point_stage, "attention": attention_stage}
+    return stages | {"assignment": assignment_stage}
+
+
+def our_edgeregnet(state: dict[str, torch.Tensor]) -> dict[str, torch.nn.Module]:
+    """the official size's four stages with the authors' state imported (i2pbench's own importer)."""
+    from i2pbench_edgeregnet import official_import
+    from i2pbench_edgeregnet.method import official_stages
+
+    split, _ = official_import.split(state)
+    stages = official_stages()
+    for kind, module in stages.items():
+        module.load_state_dict(split[kind])
+        module.eval()
+    return stages
+
+
+def with_keypoints(inputs: dict[str, np.ndarray], n: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """the reference inputs with n keypoints a side (0: the recorded ones): 3D ones drawn from the recorded cloud,
+    2D ones uniform over the image pasted on the canvas (the cost depends on the count, not on which)."""
+    if n == 0:
+        return inputs
+    rng = np.random.default_rng(seed)
+    rows = np.flatnonzero(inputs["canvas"].any(1))
+    cols = np.flatnonzero(inputs["canvas"].any(0))
+    uv = np.c_[rng.integers(0, cols.max() + 1, n), rng.integers(0, rows.max() + 1, n)].astype(np.int16)
+    kp3d = inputs["xyz"][rng.choice(len(inputs["xyz"]), n, replace=False)]
+    return inputs | {"kp3d": kp3d, "kp2d": uv}
+
+
+def relative(ours: torch.Tensor, ref: np.ndarray) -> float:
+    """max |ours - ref| / max |ref| (the reference tests' measure)."""
+    return float(np.abs(ours.numpy().astype(np.float64) - ref).max() / np.abs(ref).max())
+
+
+def edgeregnet_check(authors: Stages, ours: dict, inputs: dict, outputs: dict) -> dict[str, float]:
+    """both exchangers on the recorded descriptors against the recorded GNN outputs."""
+    from i2pbench_edgeregnet.reference import reference_frame
+
+    d3, d2 = (torch.from_numpy(outputs[k])[None] for k in ("des3d_fp", "des2d_superpoint"))
+    frame, kp2d, kp3d = reference_frame(inputs)
+    exchanger = ours["exchanger"]
+    with torch.inference_mode():
+        a3, a2 = authors["attention"](d3, d2)
+        positions = {k: v[None] for k, v in exchanger.prepare(frame, kp2d, kp3d).items()}
+        o2, o3 = exchanger.forward(positions, d2.transpose(1, 2), d3.transpose(1, 2))
+    return {
+        "authors gnn3d": relative(a3[0], outputs["gnn3d"]),
+        "authors gnn2d": relative(a2[0], outputs["gnn2d"]),
+        "ours gnn3d": relative(o3[0].T, outputs["gnn3d"]),
+        "ours gnn2d": relative(o2[0].T, outputs["gnn2d"]),
+    }
+
+
+def edgeregnet(checkout: Path, args: argparse.Namespace) -> Pair:
+    """EdgeRegNet's official size against AttentionModule, on the reference set's frame and weights."""
+    from edgeregnet_official import stage_runs  # this folder is on sys.path when the script runs
+    from i2pbench_edgeregnet.reference import recipe_state, reference_frame
+
+    folder = Path(args.reference)
+    state, digest = recipe_state(folder)
+    if digest != (folder / "weights.sha256").read_text().split()[0]:
+        raise SystemExit(f"{folder}: the regenerated weights do not match weights.sha256")
+    cali_glue = import_authors_edgeregnet(checkout)
+    model, ours = authors_edgeregnet(cali_glue, state), our_edgeregnet(state)
+    recorded, outputs = dict(np.load(folder / "inputs.npz")), dict(np.load(folder / "outputs.npz"))
+    with torch.inference_mode():
+        check = functools.partial(edgeregnet_check, authors_stages(model, cali_glue, recorded), ours, recorded, outputs)
+        inputs = with_keypoints(recorded, args.keypoints)
+        authors = authors_stages(model, cali_glue, inputs)
+        runs = stage_runs(ours, *reference_frame(inputs))
+    renamed = dict(zip(authors, runs.values(), strict=True))  # encoder2d -> image, ... in the same order
+    return Pair(authors, renamed, check)
+
+
+METHODS: dict[str, Callable[[Path, argparse.Namespace], Pair]] = {"edgeregnet": edgeregnet}
+REFERENCE = ROOT.parent / "shared" / "data" / "edgeregnet_reference"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--method", required=True, choices=sorted(METHODS))
+    parser.add_argument("--checkout", required=True, type=Path, help="the authors' code, e.g. /work/peers/EdgeRegNet")
+    parser.add_argument("--reference", default=os.environ.get("I2PBENCH_EDGEREGNET_REFERENCE", REFERENCE))
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--keypoints", type=int, default=3000, help="a side; 0: the reference set's own")
+    parser.add_argument("--json", type=Path, help="write every frame's times and load here")
+    args = parser.parse_args(argv)
+    print(f"torch {torch.__version__}; load {load_average()}; building {args.method} from {args.checkout}", flush=True)
+    pair = METHODS[args.method](args.checkout.resolve(), args)
+    errors = pair.check()
+    print("check against the reference set (max error / max |ref|, bound 1e-4): " + ", ".join(
+        f"{k} {v:.1e}" for k, v in errors.items()))  # fmt: skip
+    if any(v > 1e-4 for v in errors.values()):
+        print("the two sides do not compute the reference function: not timed", file=sys.stderr)
+        return 1
+    report = {"method": args.method, "keypoints": args.keypoints, "check": errors, "threads": {}}
+    for threads in args.threads:
+        frames = measure(pair, threads, args.repeat)
+        report["threads"][threads] = {"frames": frames, "table": print_table(threads, frames)}
+    if args.json:
+        args.json.write_text(json.dumps(report, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
