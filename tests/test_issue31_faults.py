@@ -118,7 +118,8 @@ def test_training_stops_on_exploding_weights_and_keeps_the_last_good_checkpoint(
 
     from i2pbench.pipeline import Combination, Pipeline
     from i2pbench.plugins import build_registry
-    from i2pbench.training.trainer import TrainConfig, Trainer
+    from i2pbench.training.config import TrainConfig
+    from i2pbench.training.loop import Trainer
     from i2pbench.weights import load_checkpoint
 
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")

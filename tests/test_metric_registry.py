@@ -19,7 +19,8 @@ from i2pbench.plugins import build_registry, components_of
 from i2pbench.protocol import Protocol
 from i2pbench.runs.jobs import frame_key, prepare, upstream_key
 from i2pbench.runs.store import ResultsStore
-from i2pbench.training.trainer import TrainConfig, Trainer
+from i2pbench.training.config import TrainConfig
+from i2pbench.training.loop import Trainer
 
 COLUMN = "keypoints per match ↓"
 

@@ -249,7 +249,9 @@ def test_a_mixed_checkpoint_records_its_sources_and_a_run_without_the_mix_is_a_n
     import torch
 
     from i2pbench.pipeline import Combination, Pipeline
-    from i2pbench.training.trainer import TrainConfig, Trainer, training_meta
+    from i2pbench.training.config import TrainConfig
+    from i2pbench.training.lineage import training_meta
+    from i2pbench.training.loop import Trainer
 
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
     registry = build_registry((toy_plugin,))

@@ -12,7 +12,8 @@ from test_train_cli import train
 
 from i2pbench.metrics.installed import aggregates
 from i2pbench.protocol import Protocol
-from i2pbench.training.trainer import compile_stages, spread
+from i2pbench.training.loop import spread
+from i2pbench.training.runtime import compile_stages
 from i2pbench.weights import load_checkpoint
 
 
