@@ -35,7 +35,7 @@ from torch.utils.flop_counter import FlopCounterMode
 from i2pbench.calling import StageInputs, call_stage
 from i2pbench.grid import base_combinations, expand
 from i2pbench.pipeline import Pipeline
-from i2pbench.plugins import default_registry
+from i2pbench.registry.build import default_registry
 
 LEARNED = ("encoder2d", "encoder3d", "exchanger", "matcher")
 KINDS = ("conv", "attention", "matmul")  # what FLOPs are timed against; FlopCounterMode counts nothing else

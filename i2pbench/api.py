@@ -37,10 +37,10 @@ if TYPE_CHECKING:
     from .data.base import Dataset
     from .errors import DataError, PluginError, StageError, WeightsError
     from .geometry import cell_half_diagonal, in_image, make_transform, project, rot_z, transform_points
-    from .hookspecs import Register, hookimpl
     from .learned import BatchedStage, Device, LearnedComponent, width_mismatch
-    from .methods import Method, MethodPreset, Row, Size
     from .metrics.registry import Metric, Scored
+    from .registry.hookspecs import Register, hookimpl
+    from .registry.methods import Method, MethodPreset, Row, Size
     from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
     from .weights import ImportedWeights
 
@@ -126,9 +126,9 @@ _MODULES = {
     "data.base": ("Dataset",),
     "errors": ("DataError", "PluginError", "StageError", "WeightsError"),
     "geometry": ("cell_half_diagonal", "in_image", "make_transform", "project", "rot_z", "transform_points"),
-    "hookspecs": ("Register", "hookimpl"),
+    "registry.hookspecs": ("Register", "hookimpl"),
     "learned": ("BatchedStage", "Device", "LearnedComponent", "width_mismatch"),
-    "methods": ("Method", "MethodPreset", "Row", "Size"),
+    "registry.methods": ("Method", "MethodPreset", "Row", "Size"),
     "metrics.registry": ("Metric", "Scored"),
     "types": ("Features", "Frame", "Keypoints2D", "Keypoints3D", "Matches", "PoseEstimate", "SensorFrame"),
     "weights": ("ImportedWeights",),

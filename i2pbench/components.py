@@ -236,7 +236,7 @@ class StageKind:
     Adding a kind is one entry in STAGES (in data-flow order), its base class above, its hookspec and its contract."""
 
     base: type[Component]  # what its components subclass; `base.kind` names the kind
-    hook: str  # the hookspec (i2pbench.hookspecs) its components are registered through
+    hook: str  # the hookspec (i2pbench.registry.hookspecs) its components are registered through
     options: tuple[str, ...]  # its command-line options (run, train, viz)
     inputs: tuple[str, ...]  # what it is called with after the frame, fields of `trace.StageInputs`, in order
     output: str  # the `StageInputs` field its output becomes ("features.desc2d": one side; "": none reads it)

@@ -40,7 +40,7 @@ from .components import (
 from .errors import IsolationError, PluginError, StageError
 from .execution import interrupts
 from .execution.timeout import StageTimeout, TimeLimiter, timeout_from_env
-from .plugins import Registry
+from .registry.catalog import Registry
 from .trace import Failure, FrameOutcome, StageRecord, Upstream
 from .types import Frame, Keypoints2D, Keypoints3D
 

@@ -90,7 +90,7 @@ def import_weights(registry: Any, importer: str, source: str | Path, out: str | 
 
     from .grid import expand
 
-    owners = {name: m for m, _ in registry.methods.values() for name in m.importers}
+    owners = {name: m for m in registry.methods.values() for name in m.importers}
     if importer not in owners:
         known = ", ".join(sorted(owners)) or "none"
         raise WeightsError(f"unknown weights importer {importer!r} (known: {known})")

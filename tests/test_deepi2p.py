@@ -52,8 +52,8 @@ from i2pbench.grid import base_combinations, expand
 from i2pbench.metrics.pose import pose_errors
 from i2pbench.metrics.registry import true_matches
 from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import build_registry
 from i2pbench.runs.runner import prepare
 from i2pbench.runs.upstream import UPSTREAM_KINDS, StoredUpstream
 from i2pbench.testing import check_component, check_declaration, registered_components

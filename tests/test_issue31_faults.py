@@ -117,7 +117,7 @@ def test_training_stops_on_exploding_weights_and_keeps_the_last_good_checkpoint(
     from test_weights_and_training import LEARNED, Clean
 
     from i2pbench.pipeline import Combination, Pipeline
-    from i2pbench.plugins import build_registry
+    from i2pbench.registry.build import build_registry
     from i2pbench.training.config import TrainConfig
     from i2pbench.training.loop import Trainer
     from i2pbench.weights import load_checkpoint

@@ -6,10 +6,11 @@ import dataclasses
 
 import numpy as np
 
-from i2pbench import contracts, hookspecs
+from i2pbench import contracts
 from i2pbench.commands.options import add_stage_options, stage_choices
 from i2pbench.components import STAGE_BASES, STAGE_ORDER, STAGES, Component
 from i2pbench.pipeline import REQUIRED_STAGES
+from i2pbench.registry import hookspecs
 from i2pbench.trace import Failure, FrameOutcome, StageInputs, StageRecord, Upstream
 from i2pbench.types import Features, Keypoints2D, Keypoints3D, Matches, PoseEstimate
 

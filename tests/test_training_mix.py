@@ -10,8 +10,8 @@ import toy_plugin
 
 from i2pbench.api import Extractor3D, Keypoints3D, SensorFrame, hookimpl
 from i2pbench.errors import I2PBenchError
-from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import build_registry
 from i2pbench.training.lidar_dropout import LidarDropout, thin
 from i2pbench.training.mix import MixedSource, SourceSpec, check_mix, choose_source, open_source, parse_source
 from i2pbench.training.samples import TrainingSamples

@@ -8,8 +8,8 @@ import toy_plugin
 from i2pbench.api import Extractor2D, Keypoints2D, hookimpl
 from i2pbench.errors import PluginError, WeightsError
 from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import build_registry
 from i2pbench.runs.runner import prepare, run_grid
 from i2pbench.runs.store import ResultsStore
 from i2pbench.training.config import TrainConfig
@@ -149,7 +149,7 @@ def test_auto_weights_pick_a_shipped_checkpoint_only_when_every_stage_fits(regis
     assert select_checkpoint(_pipeline(registry), "auto", [path]) is not None
     assert select_checkpoint(_pipeline(registry, encoder2d={"dim": 8}), "auto", [path]) is None
     assert select_checkpoint(_pipeline(registry), "untrained", [path]) is None
-    registry.weights.append((path, "test"))
+    registry.weights.add(path, path, "test")
     assert prepare(registry, [Combination(LEARNED)])[0].weights.startswith("toy@")
 
 

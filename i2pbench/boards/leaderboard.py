@@ -139,12 +139,11 @@ def build(
 def _methods(board: pd.DataFrame) -> list[str]:
     """Each row's method (DeepI2P, EdgeRegNet, ...; "classic" for the classic plugin's matchers), as the installed
     plugins declare them (`methods.method_of`)."""
-    from ..methods import method_of
-    from ..plugins import default_registry
+    from ..registry.build import default_registry
+    from ..registry.methods import method_of
 
     registry = default_registry()
-    methods = {name: method for name, (method, _) in registry.methods.items()}
-    owner = {name: plugin for name, (_, plugin) in registry.components["matcher"].items()}
+    methods, owner = dict(registry.methods), registry.components["matcher"].owners()
     stages = board[list(STAGE_ORDER)].astype(str).to_dict("records")
     return [method_of(methods, owner, row) for row in stages]
 

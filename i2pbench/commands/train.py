@@ -179,8 +179,8 @@ def package_folders() -> list[Path]:
     weights, which training never writes into."""
     import importlib.util
 
-    from ..entry_points import installed
-    from ..plugins import ENTRY_POINT_GROUP
+    from ..registry.entry_points import installed
+    from ..registry.loading import ENTRY_POINT_GROUP
 
     folders = [Path(__file__).resolve().parents[1]]
     for ep in installed(ENTRY_POINT_GROUP):
@@ -242,7 +242,7 @@ def run(args: argparse.Namespace) -> int:
     from ..execution.devices import resolve_device
     from ..execution.isolation import isolated
     from ..pipeline import Pipeline
-    from ..plugins import default_registry
+    from ..registry.build import default_registry
     from ..runs.environment import fix_threads
     from ..training.lineage import training_meta
     from ..training.loop import Trainer, steps_for_epochs

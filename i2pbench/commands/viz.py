@@ -52,8 +52,8 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import I2PBenchError, PluginError
     from ..execution.devices import resolve_device
     from ..metrics.pose import pose_errors
-    from ..plugins import default_registry
     from ..protocol import Protocol
+    from ..registry.build import default_registry
     from ..report import overlay
     from ..runs.environment import fix_threads
     from ..runs.runner import prepare

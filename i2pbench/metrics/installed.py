@@ -9,14 +9,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .. import plugins
 from ..protocol import Protocol
+from ..registry import build
 from .registry import BUILTIN, Metric, Scored
 
 
 def active() -> tuple[Metric, ...]:
     """The built-in metrics, then those the installed plugins register (in plugin order)."""
-    return BUILTIN + tuple(metric for metric, _ in plugins.default_registry().metrics.values())
+    return BUILTIN + tuple(build.default_registry().metrics.values())
 
 
 def record_values(scored: Scored, metrics: Iterable[Metric] | None = None) -> dict[str, float]:

@@ -6,9 +6,9 @@ from __future__ import annotations
 import difflib
 from typing import TYPE_CHECKING
 
-from .. import plugins
 from ..errors import I2PBenchError
 from ..protocol import Protocol
+from ..registry import build
 from .cards import DEFAULT_NAME, DEFAULT_VERSION, EDGEREGNET, ProtocolCard
 from .score import frame_errors
 
@@ -18,8 +18,7 @@ if TYPE_CHECKING:
 
 def installed(registry=None) -> dict[str, ProtocolCard]:
     """Every registered card by name, the default first (present even when every plugin is blocked)."""
-    table = (registry or plugins.default_registry()).protocols
-    return {EDGEREGNET.name: EDGEREGNET, **{name: card for name, (card, _) in table.items()}}
+    return {EDGEREGNET.name: EDGEREGNET, **(registry or build.default_registry()).protocols}
 
 
 def find(name: str, registry=None) -> ProtocolCard:

@@ -74,7 +74,7 @@ def register_presets(register: Register) -> None:
 
 @hookspec
 def register_methods(register: Register) -> None:
-    """Register learned methods: `register(i2pbench.methods.Method(...))`, one object naming a method's stage
+    """Register learned methods: `register(i2pbench.registry.methods.Method(...))`, one object naming a method's stage
     components, its sizes (named stage configs), its presets (rows built from a size, stages swapped) and its shipped
     checkpoints. Its presets and weights are registered with it: no `register_presets` needed."""
 
