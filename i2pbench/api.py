@@ -38,9 +38,9 @@ if TYPE_CHECKING:
     from .errors import DataError, PluginError, StageError, WeightsError
     from .geometry import cell_half_diagonal, in_image, make_transform, project, rot_z, transform_points
     from .learned import BatchedStage, Device, LearnedComponent, width_mismatch
-    from .metrics.registry import Metric, Scored
     from .registry.hookspecs import Register, hookimpl
     from .registry.methods import Method, MethodPreset, Row, Size
+    from .scoring.metrics import Metric, Scored
     from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
     from .weights import ImportedWeights
 
@@ -129,7 +129,7 @@ _MODULES = {
     "registry.hookspecs": ("Register", "hookimpl"),
     "learned": ("BatchedStage", "Device", "LearnedComponent", "width_mismatch"),
     "registry.methods": ("Method", "MethodPreset", "Row", "Size"),
-    "metrics.registry": ("Metric", "Scored"),
+    "scoring.metrics": ("Metric", "Scored"),
     "types": ("Features", "Frame", "Keypoints2D", "Keypoints3D", "Matches", "PoseEstimate", "SensorFrame"),
     "weights": ("ImportedWeights",),
 }

@@ -11,10 +11,10 @@ import pandas as pd
 import pytest
 
 from i2pbench.diagnostics import edge_diagnostics_grid, summarize_edge_diagnostics
-from i2pbench.metrics.pose import pose_errors
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
+from i2pbench.scoring.pose import pose_errors
 
 KITTI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_odometry"
 EXTRACTORS_2D = ["lsd", "canny", "sobel", "random"]

@@ -379,7 +379,7 @@ def test_rre_at_gimbal_lock_is_the_peers_number_without_a_warning():
 
     from scipy.spatial.transform import Rotation
 
-    from i2pbench.metrics.pose import pose_errors
+    from i2pbench.scoring.pose import pose_errors
 
     R = Rotation.from_euler("xzy", [10.0, 90.0, 20.0], degrees=True).as_matrix()  # z at 90 deg: locked
     T_pred = np.eye(4)

@@ -105,7 +105,7 @@ def add_method(registry: Registry, plugin: str, method: Any) -> None:
 
 def add_metric(registry: Registry, plugin: str, metric: Any) -> None:
     """A plugin's metric; a name or column another metric has (a built-in's included) is refused, naming both."""
-    from ..metrics.registry import BUILTIN, check
+    from ..scoring.metrics import BUILTIN, check
 
     metric = check(metric, plugin)
     taken = {m.name: "i2pbench" for m in BUILTIN} | {m.column: "i2pbench" for m in BUILTIN if m.column}

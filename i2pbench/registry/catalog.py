@@ -23,8 +23,8 @@ from .table import NAME_CLASH, Table
 if TYPE_CHECKING:  # imported to check a class: listing what was registered by path needs neither
     from ..corruptions import Corruption
     from ..data.base import Dataset
-    from ..metrics.registry import Metric
     from ..scoring.cards import ProtocolCard
+    from ..scoring.metrics import Metric
 
 CLASS_KINDS: tuple[str, ...] = (*STAGE_BASES, "dataset", "corruption")  # kinds whose entries are classes
 

@@ -89,7 +89,7 @@ def register_corruptions(register: Register) -> None:
 def register_metrics(register: Register) -> None:
     """Register `i2pbench.api.Metric`s: `register(Metric(...))`, a per-frame value stored in every record and its
     aggregate as a leaderboard column, read by `run`, `evaluate`, training validation and `compare`
-    (`i2pbench.metrics.registry` says how to declare one)."""
+    (`i2pbench.scoring.metrics` says how to declare one)."""
 
 
 @hookspec

@@ -23,10 +23,10 @@ import torch
 
 from ..data.base import Dataset
 from ..errors import I2PBenchError
-from ..metrics import installed as installed_metrics
-from ..metrics.pose import summarize
 from ..pipeline import Pipeline
 from ..protocol import Protocol
+from ..scoring import installed as installed_metrics
+from ..scoring.pose import kept
 from ..types import Frame
 from ..weights import save_checkpoint
 from . import checkpoints, lineage, trainable
@@ -194,7 +194,7 @@ class Trainer:
         records = pd.DataFrame([run_frame(job, self.val_set, frame_id, protocol) for frame_id in ids])
         stats = installed_metrics.aggregates(records, protocol) if len(records) else {}
         if len(records):
-            stats["kept"] = summarize(records["rte_m"], records["rre_deg"], protocol)["kept"]
+            stats["kept"] = int(kept(records["rte_m"], records["rre_deg"], protocol).sum())
         numbers = {k: float(v) for k, v in stats.items() if isinstance(v, int | float) and not math.isnan(v)}
         return {"step": self.step, "frames": len(records), **numbers}
 
