@@ -23,7 +23,6 @@ if TYPE_CHECKING:
         MATCHES,
         POINTS,
         Component,
-        ConfigError,
         Encoder2D,
         Encoder3D,
         Exchanger,
@@ -41,6 +40,7 @@ if TYPE_CHECKING:
     from .registry.hookspecs import Register, hookimpl
     from .registry.methods import Method, MethodPreset, Row, Size
     from .scoring.metrics import Metric, Scored
+    from .stages.config import ConfigError
     from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
     from .weights import ImportedWeights
 
@@ -112,7 +112,6 @@ _MODULES = {
         "MATCHES",
         "POINTS",
         "Component",
-        "ConfigError",
         "Encoder2D",
         "Encoder3D",
         "Exchanger",
@@ -124,6 +123,7 @@ _MODULES = {
     "correspondence": ("ground_truth_matches",),
     "corruptions": ("Corruption",),
     "data.base": ("Dataset",),
+    "stages.config": ("ConfigError",),
     "errors": ("DataError", "PluginError", "StageError", "WeightsError"),
     "geometry": ("cell_half_diagonal", "in_image", "make_transform", "project", "rot_z", "transform_points"),
     "registry.hookspecs": ("Register", "hookimpl"),

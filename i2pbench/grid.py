@@ -12,12 +12,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from . import yaml_input
-from .components import STAGE_BASES, STAGE_ORDER, overlay
+from .components import STAGE_BASES, STAGE_ORDER
 from .corruptions import Corruption, NotApplicable, unavailable
 from .errors import PluginError
 from .pipeline import NONE, REQUIRED_STAGES, Combination
 from .protocol import Protocol
 from .registry.catalog import Registry
+from .stages.config import overlay
 
 if TYPE_CHECKING:
     from .data.base import Dataset

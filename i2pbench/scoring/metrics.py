@@ -36,7 +36,7 @@ from ..protocol import Protocol
 from .pose import PoseErrors, kept, success
 
 if TYPE_CHECKING:
-    from ..trace import FrameOutcome
+    from ..stages.trace import FrameOutcome
     from ..types import Frame
 
 ACC, RTE, RRE = "Acc. (%) ↑", "RTE (m) ↓", "RRE (°) ↓"
