@@ -22,7 +22,7 @@ from i2pbench_edgeregnet import configs
 from i2pbench.api import Features, Frame, Keypoints2D, Keypoints3D
 from i2pbench.geometry import in_image, project
 from i2pbench.layers.pointnet2 import farthest_point_sampling
-from i2pbench.plugins import build_registry
+from i2pbench.registry.build import build_registry
 
 W, H, N_POINTS = 1241, 376, 120_000
 K = np.array([[718.9, 0.0, 607.2], [0.0, 718.9, 185.2], [0.0, 0.0, 1.0]])

@@ -38,8 +38,9 @@ from i2pbench.api import Extractor2D, Keypoints2D, hookimpl
 from i2pbench.data.kitti import KittiOdometry
 from i2pbench.grid import expand
 from i2pbench.pipeline import Combination
-from i2pbench.plugins import Registry, build_registry, default_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import build_registry, default_registry
+from i2pbench.registry.catalog import Registry
 from i2pbench.runs.executors import Collector, Executor, LocalExecutor, Task, Work, plan
 from i2pbench.runs.runner import prepare, run_job
 from i2pbench.runs.store import ResultsStore

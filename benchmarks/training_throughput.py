@@ -23,10 +23,11 @@ import torch
 
 from i2pbench.grid import base_combinations, expand, parse_conf_overrides
 from i2pbench.pipeline import Pipeline
-from i2pbench.plugins import default_registry
+from i2pbench.registry.build import default_registry
 from i2pbench.training.batching import BatchForward, to_device
+from i2pbench.training.config import TrainConfig
+from i2pbench.training.loop import Trainer
 from i2pbench.training.samples import TrainingSamples, collate_samples
-from i2pbench.training.trainer import TrainConfig, Trainer
 
 PRESETS = {"cpu": "default", "paper": "edgeregnet-full"}
 SYNCS = ("aten::item", "aten::_local_scalar_dense")

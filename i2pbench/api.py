@@ -26,7 +26,6 @@ if TYPE_CHECKING:
         MATCHES,
         POINTS,
         Component,
-        ConfigError,
         Encoder2D,
         Encoder3D,
         Exchanger,
@@ -40,11 +39,12 @@ if TYPE_CHECKING:
     from .data.base import Dataset
     from .errors import DataError, PluginError, StageError, WeightsError
     from .geometry import cell_half_diagonal, in_image, make_transform, project, rot_z, transform_points
-    from .hookspecs import Register, hookimpl
     from .learned import BatchedStage, Device, LearnedComponent, width_mismatch
-    from .methods import Method, MethodPreset, Row, Size
-    from .metrics.registry import Metric, Scored
+    from .registry.hookspecs import Register, hookimpl
+    from .registry.methods import Method, MethodPreset, Row, Size
     from .results import CompareResult, EvaluateResult, RunResult, ScoreResult
+    from .scoring.metrics import Metric, Scored
+    from .stages.config import ConfigError
     from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate, SensorFrame
     from .weights import ImportedWeights
 
@@ -126,7 +126,6 @@ _MODULES = {
         "MATCHES",
         "POINTS",
         "Component",
-        "ConfigError",
         "Encoder2D",
         "Encoder3D",
         "Exchanger",
@@ -138,12 +137,13 @@ _MODULES = {
     "correspondence": ("ground_truth_matches",),
     "corruptions": ("Corruption",),
     "data.base": ("Dataset",),
+    "stages.config": ("ConfigError",),
     "errors": ("DataError", "PluginError", "StageError", "WeightsError"),
     "geometry": ("cell_half_diagonal", "in_image", "make_transform", "project", "rot_z", "transform_points"),
-    "hookspecs": ("Register", "hookimpl"),
+    "registry.hookspecs": ("Register", "hookimpl"),
     "learned": ("BatchedStage", "Device", "LearnedComponent", "width_mismatch"),
-    "methods": ("Method", "MethodPreset", "Row", "Size"),
-    "metrics.registry": ("Metric", "Scored"),
+    "registry.methods": ("Method", "MethodPreset", "Row", "Size"),
+    "scoring.metrics": ("Metric", "Scored"),
     "results": ("CompareResult", "EvaluateResult", "RunResult", "ScoreResult"),
     "types": ("Features", "Frame", "Keypoints2D", "Keypoints3D", "Matches", "PoseEstimate", "SensorFrame"),
     "weights": ("ImportedWeights",),

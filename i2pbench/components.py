@@ -6,17 +6,16 @@ names of the values it `consumes` and `provides`, so an incompatible combination
 
 from __future__ import annotations
 
-import copy
-import math
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
-from .errors import PluginError
+from .stages.config import merge_conf
 
 if TYPE_CHECKING:  # torch is imported where a learned stage is built, not by every command that names stages
     import torch
 
+    from .stages.inputs import StageInputs
     from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
 
 # The values that can flow between stages; a frame always provides "image" and "points".
@@ -30,83 +29,6 @@ FRUSTUM_SCORES = "frustum_scores"
 # values beyond those of the stage bases, each with the one stage kind that may provide it: a component declares one
 # in `provides` explicitly, and a stage consuming it needs a component that does
 EXTRA_VALUES: dict[str, str] = {FRUSTUM_SCORES: "matcher"}
-
-
-class ConfigError(PluginError, ValueError):
-    """A component was given a configuration it does not understand."""
-
-
-def merge_conf(defaults: Mapping[str, Any], overrides: Mapping[str, Any] | None, owner: str) -> dict[str, Any]:
-    """`overrides` merged over a copy of `defaults` at every depth: a mapping given for a mapping default changes
-    only the keys it names (`{"sa1": {"radius": 0.2}}` keeps sa1's other keys). A key the defaults lack, at any
-    depth, is a ConfigError naming its dotted path and the closest valid one; an empty mapping default (nothing to
-    check against) takes a mapping whole."""
-    return _merged(defaults, overrides or {}, owner, "")
-
-
-def _merged(defaults: Mapping[str, Any], overrides: Mapping[str, Any], owner: str, path: str) -> dict[str, Any]:
-    conf = copy.deepcopy(dict(defaults))
-    for key, value in overrides.items():
-        where = f"{path}{key}"
-        if key not in conf:
-            raise ConfigError(_unknown_key(owner, path, str(key), conf))
-        check_kind(owner, where, conf[key], value)
-        nested = isinstance(conf[key], Mapping) and bool(conf[key]) and isinstance(value, Mapping)
-        conf[key] = _merged(conf[key], value, owner, f"{where}.") if nested else value
-    return conf
-
-
-def overlay(base: Mapping[str, Any], more: Mapping[str, Any]) -> dict[str, Any]:
-    """`more` over `base`, nested mappings merged rather than replaced and nothing checked: overrides from several
-    places (a preset's pins, a grid file, --conf) combined before `merge_conf` checks them against the defaults."""
-    out = dict(base)
-    for key, value in more.items():
-        both = isinstance(out.get(key), Mapping) and isinstance(value, Mapping)
-        out[key] = overlay(out[key], value) if both else value
-    return out
-
-
-def _unknown_key(owner: str, path: str, key: str, known: Mapping[str, Any]) -> str:
-    import difflib  # only to suggest a key: a valid config never needs it
-
-    names = [str(k) for k in known]
-    close = difflib.get_close_matches(key, names, n=1, cutoff=0.5)
-    hint = f"; did you mean {path + close[0]!r}?" if close else ""
-    where = f" under {path[:-1]!r}" if path else ""
-    return f"{owner}: unknown config key {path + key!r}{hint} (known keys{where}: {', '.join(names)})"
-
-
-LENGTHS = ("radius_px", "reproj")  # keys that are pixel lengths (match radii, reprojection error bounds): above 0
-
-
-def _kind(value: Any) -> str | None:
-    """the kind of value a config key holds, for the check below; None: any value goes (a None default, or None)."""
-    if value is None:
-        return None
-    if isinstance(value, bool):
-        return "true or false"
-    if isinstance(value, int | float):
-        return "a number"
-    if isinstance(value, str):
-        return "a string"
-    if isinstance(value, list | tuple):
-        return "a list"
-    return "a mapping" if isinstance(value, Mapping) else None
-
-
-def check_kind(owner: str, key: str, default: Any, value: Any) -> None:
-    """Refuse a value of another kind than its default (a string where a list goes would be read as its
-    characters). A None default or value, and ints for floats, go through."""
-    want, got = _kind(default), _kind(value)
-    if want is not None and got is not None and want != got:
-        raise ConfigError(f"{owner}: config {key} = {value!r} is {got}, but {key} takes {want} (default {default!r})")
-    if got != "a number":
-        return
-    if math.isnan(value):
-        raise ConfigError(f"{owner}: config {key} = nan is no number to compare with; give a number")
-    lengths = any(word in key for word in LENGTHS) and isinstance(default, int | float) and default > 0
-    if lengths and not (math.isfinite(value) and value > 0):  # a radius of 0 or -3 px matches nothing, silently
-        raise ConfigError(f"{owner}: config {key} = {value!r}: a radius or error bound is a finite positive number")
 
 
 class Component:
@@ -230,17 +152,67 @@ class PoseSolver(Component):
         raise NotImplementedError
 
 
+# What a stage of each kind is called with after the frame (`features`: the descriptor sides it declares) ...
+def _no_inputs(inputs: StageInputs, features: Features) -> tuple[Any, ...]:
+    return ()
+
+
+def _kp2d(inputs: StageInputs, features: Features) -> tuple[Any, ...]:
+    return (inputs.kp2d,)
+
+
+def _kp3d(inputs: StageInputs, features: Features) -> tuple[Any, ...]:
+    return (inputs.kp3d,)
+
+
+def _keypoints_and_features(inputs: StageInputs, features: Features) -> tuple[Any, ...]:
+    return inputs.kp2d, inputs.kp3d, features
+
+
+def _keypoints_and_matches(inputs: StageInputs, features: Features) -> tuple[Any, ...]:
+    return inputs.kp2d, inputs.kp3d, inputs.matches
+
+
+# ... and where its output goes for the stages after it.
+def _as_kp2d(inputs: StageInputs, out: Keypoints2D) -> StageInputs:
+    return replace(inputs, kp2d=out)
+
+
+def _as_kp3d(inputs: StageInputs, out: Keypoints3D) -> StageInputs:
+    return replace(inputs, kp3d=out)
+
+
+def _as_desc2d(inputs: StageInputs, out: torch.Tensor | None) -> StageInputs:
+    return replace(inputs, features=replace(inputs.features, desc2d=out))
+
+
+def _as_desc3d(inputs: StageInputs, out: torch.Tensor | None) -> StageInputs:
+    return replace(inputs, features=replace(inputs.features, desc3d=out))
+
+
+def _as_features(inputs: StageInputs, out: Features) -> StageInputs:
+    return replace(inputs, features=out)
+
+
+def _as_matches(inputs: StageInputs, out: Matches) -> StageInputs:
+    return replace(inputs, matches=out)
+
+
+def _unread(inputs: StageInputs, out: PoseEstimate) -> StageInputs:
+    return inputs  # the solver's estimate ends the frame: no stage reads it
+
+
 @dataclass(frozen=True)
 class StageKind:
     """One stage kind as the whole core reads it: registry, hooks, command line, calls, trace and contract checks.
     Adding a kind is one entry in STAGES (in data-flow order), its base class above, its hookspec and its contract."""
 
     base: type[Component]  # what its components subclass; `base.kind` names the kind
-    hook: str  # the hookspec (i2pbench.hookspecs) its components are registered through
+    hook: str  # the hookspec (i2pbench.registry.hookspecs) its components are registered through
     options: tuple[str, ...]  # its command-line options (run, train, viz)
-    inputs: tuple[str, ...]  # what it is called with after the frame, fields of `trace.StageInputs`, in order
-    output: str  # the `StageInputs` field its output becomes ("features.desc2d": one side; "": none reads it)
-    contract: str  # the function of i2pbench.contracts that checks its output before anything reads it
+    arguments: Callable[[StageInputs, Features], tuple[Any, ...]]  # what it is called with after the frame
+    put: Callable[[StageInputs, Any], StageInputs]  # the inputs with its output where the stages after it read it
+    contract: str  # the function of i2pbench.stages.contracts that checks its output before anything reads it
     required: bool = False  # a combination without it is refused
     learnable: bool = False  # its components may hold trained parameters (`learned.LearnedComponent`)
 
@@ -252,18 +224,19 @@ class StageKind:
 STAGES: dict[str, StageKind] = {
     spec.kind: spec
     for spec in (
-        StageKind(Extractor2D, "register_extractors_2d", ("--extractor", "--extractor2d"), (), "kp2d", "keypoints2d",
+        StageKind(Extractor2D, "register_extractors_2d", ("--extractor", "--extractor2d"), _no_inputs, _as_kp2d,
+                  "keypoints2d", required=True),
+        StageKind(Extractor3D, "register_extractors_3d", ("--extractor3d",), _no_inputs, _as_kp3d, "keypoints3d",
                   required=True),
-        StageKind(Extractor3D, "register_extractors_3d", ("--extractor3d",), (), "kp3d", "keypoints3d", required=True),
-        StageKind(Encoder2D, "register_encoders_2d", ("--encoder2d",), ("kp2d",), "features.desc2d", "descriptors2d",
+        StageKind(Encoder2D, "register_encoders_2d", ("--encoder2d",), _kp2d, _as_desc2d, "descriptors2d",
                   learnable=True),
-        StageKind(Encoder3D, "register_encoders_3d", ("--encoder3d",), ("kp3d",), "features.desc3d", "descriptors3d",
+        StageKind(Encoder3D, "register_encoders_3d", ("--encoder3d",), _kp3d, _as_desc3d, "descriptors3d",
                   learnable=True),
-        StageKind(Exchanger, "register_exchangers", ("--exchanger",), ("kp2d", "kp3d", "features"), "features",
+        StageKind(Exchanger, "register_exchangers", ("--exchanger",), _keypoints_and_features, _as_features,
                   "features", learnable=True),
-        StageKind(Matcher, "register_matchers", ("--matcher",), ("kp2d", "kp3d", "features"), "matches", "matches",
+        StageKind(Matcher, "register_matchers", ("--matcher",), _keypoints_and_features, _as_matches, "matches",
                   required=True, learnable=True),
-        StageKind(PoseSolver, "register_pose_solvers", ("--solver",), ("kp2d", "kp3d", "matches"), "", "estimate",
+        StageKind(PoseSolver, "register_pose_solvers", ("--solver",), _keypoints_and_matches, _unread, "estimate",
                   required=True),
     )
 }  # fmt: skip

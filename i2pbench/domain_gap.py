@@ -21,7 +21,7 @@ from .boards import leaderboard
 from .components import Extractor2D, Extractor3D
 from .diagnostics import pair_row
 from .geometry import in_image, project
-from .plugins import Registry
+from .registry.catalog import Registry
 from .types import Frame
 
 EDGE_EXTRACTORS = {  # counted uncapped: the cap (3000 by default) would flatten every gap in counts

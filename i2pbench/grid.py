@@ -12,12 +12,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from . import yaml_input
-from .components import STAGE_BASES, STAGE_ORDER, overlay
+from .components import STAGE_BASES, STAGE_ORDER
 from .corruptions import Corruption, NotApplicable, unavailable
 from .errors import PluginError
 from .pipeline import NONE, REQUIRED_STAGES, Combination
-from .plugins import Registry
 from .protocol import Protocol
+from .registry.catalog import Registry
+from .stages.config import overlay
 
 if TYPE_CHECKING:
     from .data.base import Dataset
@@ -74,10 +75,10 @@ def expand(
 ) -> list[Combination]:
     """The product of the per-stage choices, applied over each base combination (duplicates dropped).
 
-    A base may carry "confs" ({kind: {key: value}}): config a preset pins, e.g. the size a method's weights were
-    trained at (i2pbench.methods), and a "variant" label for them; a base conf applies only while its stage keeps
-    the base's component, and `confs` overrides it. With a registry, names are canonical (an alias gives the same
-    row as its name), and stages taken from the base whose outputs no later stage consumes are dropped
+    A base may carry "confs" ({kind: {key: value}}): config a preset pins, e.g. the size a method's weights
+    were trained at (i2pbench.registry.methods), and a "variant" label for them; a base conf applies only while its
+    stage keeps the base's component, and `confs` overrides it. With a registry, names are canonical (an alias gives
+    the same row as its name), and stages taken from the base whose outputs no later stage consumes are dropped
     (`--matcher oracle` over the default pipeline needs no encoders); stages the user named are always kept.
     """
     kinds = [k for k in STAGE_ORDER if choices.get(k)]

@@ -1,8 +1,9 @@
 """A chosen combination of components, checked before any frame runs, and run one frame at a time.
 
-`Pipeline.run` is the only code that calls stages, each through `i2pbench.calling.call_stage` (declared view, timed
-call, contract check), and it returns the frame's trace (`i2pbench.trace.FrameOutcome`): each stage's checked output and
-seconds, in order, and the failure if any; runs, viz and training read that trace. An exception, a contract violation or
+`Pipeline.run` calls a frame's stages, each through `i2pbench.stages.calling.call_stage` (declared view, timed call,
+contract check; the one caller, which the batched training path and the conformance kit use too), and returns the
+frame's trace (`i2pbench.stages.trace.FrameOutcome`): each stage's checked output and seconds, in order, and the
+failure if any; runs, viz and training read that trace. An exception, a contract violation or
 a stage running past its time limit (see `i2pbench.execution.timeout`) becomes a failed outcome that names the
 component, so one bad frame or plugin never sinks a run. That includes plugin code calling sys.exit or raising
 KeyboardInterrupt; only the user's own Ctrl-C stops a run (`i2pbench.execution.interrupts` tells the two apart).
@@ -21,8 +22,6 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from . import contracts
-from .calling import StageInputs, call_stage
 from .components import (
     EXTRA_VALUES,
     FRUSTUM_SCORES,
@@ -40,8 +39,10 @@ from .components import (
 from .errors import IsolationError, PluginError, StageError
 from .execution import interrupts
 from .execution.timeout import StageTimeout, TimeLimiter, timeout_from_env
-from .plugins import Registry
-from .trace import Failure, FrameOutcome, StageRecord, Upstream
+from .registry.catalog import Registry
+from .stages import contracts
+from .stages.calling import StageInputs, call_stage
+from .stages.trace import Failure, FrameOutcome, StageRecord, Upstream
 from .types import Frame, Keypoints2D, Keypoints3D
 
 if TYPE_CHECKING:  # a pipeline of classic stages runs without torch; learned stages bring it
@@ -259,7 +260,7 @@ def _walk(
             progress.start(kind)
             record = call_stage(stages[kind], frame, inputs)
             progress.records.append(record)
-            inputs = inputs.after(record)
+            inputs = STAGES[kind].put(inputs, record.output)
 
 
 def extract(stages: Mapping[str, Component], frame: Frame) -> tuple[Keypoints2D, Keypoints3D]:

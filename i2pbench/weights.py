@@ -162,7 +162,7 @@ def import_weights(registry: Any, importer: str, source: str | Path, out: str | 
 
     from .grid import expand
 
-    owners = {name: m for m, _ in registry.methods.values() for name in m.importers}
+    owners = {name: m for m in registry.methods.values() for name in m.importers}
     if importer not in owners:
         known = ", ".join(sorted(owners)) or "none"
         raise WeightsError(f"unknown weights importer {importer!r} (known: {known})")
@@ -194,8 +194,8 @@ def package_folders() -> list[Path]:
     weights, which nothing writes into."""
     import importlib.util
 
-    from .entry_points import installed
-    from .plugins import ENTRY_POINT_GROUP
+    from .registry.entry_points import installed
+    from .registry.loading import ENTRY_POINT_GROUP
 
     folders = [Path(__file__).resolve().parent]
     for ep in installed(ENTRY_POINT_GROUP):

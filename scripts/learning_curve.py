@@ -263,8 +263,8 @@ def frame_losses(
 
     from i2pbench.data.kitti_drives import KittiDrives
     from i2pbench.pipeline import Combination
-    from i2pbench.plugins import default_registry
     from i2pbench.protocol import Protocol
+    from i2pbench.registry.build import default_registry
     from i2pbench.runs.jobs import prepare
 
     torch.set_num_threads(1)  # one process per checkpoint, side by side

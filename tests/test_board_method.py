@@ -6,8 +6,8 @@ import pytest
 
 from i2pbench.boards import leaderboard
 from i2pbench.components import STAGE_ORDER
-from i2pbench.methods import Method, Size, method_of
-from i2pbench.plugins import default_registry
+from i2pbench.registry.build import default_registry
+from i2pbench.registry.methods import Method, Size, method_of
 
 
 @pytest.mark.parametrize(
@@ -23,8 +23,7 @@ from i2pbench.plugins import default_registry
 )
 def test_every_row_of_a_methods_preset_names_the_method(preset, method):
     registry = default_registry()
-    methods = {name: m for name, (m, _) in registry.methods.items()}
-    owner = {name: plugin for name, (_, plugin) in registry.components["matcher"].items()}
+    methods, owner = dict(registry.methods), registry.components["matcher"].owners()
     rows = registry.preset_rows(preset)
     full = [{kind: row.get(kind, "none") for kind in STAGE_ORDER} for row in rows]
     named = [method_of(methods, owner, row) for row in full]

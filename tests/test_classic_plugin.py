@@ -8,7 +8,7 @@ import pytest
 from i2pbench.diagnostics import edge_diagnostics, image_coverage, summarize_edge_diagnostics
 from i2pbench.errors import PluginError
 from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.plugins import default_registry
+from i2pbench.registry.build import default_registry
 from i2pbench.types import Frame, Keypoints2D, Keypoints3D
 
 

@@ -9,7 +9,7 @@ from i2pbench_classic.solvers import EPnPRansacSolver, PoseLibSolver
 from scipy.spatial.transform import Rotation
 
 from i2pbench.geometry import make_transform, project
-from i2pbench.metrics.pose import pose_errors
+from i2pbench.scoring.pose import pose_errors
 from i2pbench.types import Frame, Keypoints2D, Keypoints3D, Matches
 
 K = np.array([[721.5377, 0.0, 609.5593], [0.0, 721.5377, 172.854], [0.0, 0.0, 1.0]])

@@ -53,7 +53,7 @@ def test_plugins_lists_every_component_without_importing_them_or_numpy_torch_sci
 
 
 def test_a_second_start_finds_the_plugins_without_importlib_metadata(tmp_path):
-    """The entry points found by the first start are kept (i2pbench.entry_points): the next skips the ~30 ms of
+    """The entry points found by the first start are kept (i2pbench.registry.entry_points): the next skips the ~30 ms of
     importing importlib.metadata and reading every distribution, and lists the same."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("I2PBENCH_")} | {"XDG_CACHE_HOME": str(tmp_path)}
     first, cold = _run("plugins", env=env)

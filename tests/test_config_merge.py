@@ -4,12 +4,12 @@ resolve to the configs (and so the cache keys) the one-level merge plus the plug
 import pytest
 from test_cli_errors import assert_refused, i2pbench
 
-from i2pbench.components import ConfigError, merge_conf, overlay
 from i2pbench.errors import PluginError
 from i2pbench.grid import parse_conf_overrides
-from i2pbench.plugins import default_registry
+from i2pbench.registry.build import default_registry
 from i2pbench.runs.jobs import _described
 from i2pbench.runs.store import cache_key
+from i2pbench.stages.config import ConfigError, merge_conf, overlay
 
 # (kind, name, overrides) -> the cache key of the stage's description, computed before the deep merge existed (the
 # two PointNet++ encoders' recomputed when layers.pointnet2 and layers.kernels went to REVISION 1, issue 39)

@@ -6,7 +6,7 @@ import importlib.util
 import pytest
 import torch
 
-from i2pbench.plugins import default_registry
+from i2pbench.registry.build import default_registry
 from i2pbench.testing import check_component, kitti_frame
 
 # Small versions of the learned stages keep this test fast; the contracts do not depend on width or depth.

@@ -10,8 +10,8 @@ import toy_plugin
 from i2pbench.api import Extractor3D, Keypoints3D, hookimpl
 from i2pbench.execution.timeout import StageTimeout, TimeLimiter, timeout_from_env
 from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import build_registry
 from i2pbench.runs.runner import run_grid
 from i2pbench.runs.store import ResultsStore
 

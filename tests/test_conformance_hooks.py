@@ -6,8 +6,9 @@ import toy_plugin
 from i2pbench.api import Corruption, Encoder3D, Exchanger, Method, Metric, Size, hookimpl
 from i2pbench.components import STAGES
 from i2pbench.errors import PluginError
-from i2pbench.hookspecs import HOOK_NAMES
-from i2pbench.plugins import build_registry, components_of
+from i2pbench.registry.build import build_registry
+from i2pbench.registry.hookspecs import HOOK_NAMES
+from i2pbench.registry.listing import components_of
 from i2pbench.scoring.cards import NATIVE, ProtocolCard
 from i2pbench.scoring.rules import ScoringRules
 
@@ -111,7 +112,7 @@ def test_each_stage_hook_registers_its_kind(registry):
 def test_datasets_presets_weights_and_corruptions_are_registered(registry):
     assert registry.dataset("toy") is toy_plugin.ToyDataset
     assert registry.preset("everything").combinations == ({"extractor2d": "grid", "solver": "truth"},)
-    assert registry.weights == [("/weights/every-hook.pt", "every-hook")]
+    assert registry.weights.owners() == {"/weights/every-hook.pt": "every-hook"}
     assert registry.corruption("stub-corruption") is CorruptionStub
     listed = components_of(registry, "every-hook")
     assert (
@@ -119,8 +120,8 @@ def test_datasets_presets_weights_and_corruptions_are_registered(registry):
     )
     assert listed["corruption"] == ["stub-corruption"]
     assert registry.method("stub-method").sizes == (Size("one"),) and listed["method"] == ["stub-method"]
-    assert registry.metrics["stub_metric"][0].column == "stub metric ↑" and listed["metric"] == ["stub_metric"]
-    assert registry.protocols["stub-protocol"][0].rules.rre == "geodesic" and listed["protocol"] == ["stub-protocol"]
+    assert registry.metrics["stub_metric"].column == "stub metric ↑" and listed["metric"] == ["stub_metric"]
+    assert registry.protocols["stub-protocol"].rules.rre == "geodesic" and listed["protocol"] == ["stub-protocol"]
 
 
 def test_a_class_of_the_wrong_kind_is_refused_naming_the_plugin(monkeypatch):

@@ -18,7 +18,7 @@ from i2pbench_edgeregnet.reference import recipe_value
 
 from i2pbench.api import Keypoints2D, Keypoints3D, WeightsError
 from i2pbench.cli import main
-from i2pbench.plugins import default_registry
+from i2pbench.registry.build import default_registry
 from i2pbench.weights import load_checkpoint
 
 SHAPES = Path(__file__).parent / "data" / "reference" / "corri2p" / "state_dict_shapes.json"

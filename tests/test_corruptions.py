@@ -20,8 +20,9 @@ from i2pbench.corruptions import CorruptionError
 from i2pbench.errors import I2PBenchError, PluginError
 from i2pbench.grid import protocols
 from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.plugins import build_registry, components_of, default_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import build_registry, default_registry
+from i2pbench.registry.listing import components_of
 from i2pbench.report.rundir import resolved
 from i2pbench.runs.runner import frame_key, prepare, run_grid, true_matches
 from i2pbench.runs.store import ResultsStore

@@ -23,8 +23,8 @@ from i2pbench.errors import DataError, PluginError
 from i2pbench.geometry import in_image, invert, make_transform, project, rot_z, transform_points
 from i2pbench.grid import protocols
 from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.plugins import default_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import default_registry
 from i2pbench.types import SensorFrame
 
 TILTS = (1, 2, 3, 5, 8)  # degrees

@@ -19,8 +19,8 @@ from i2pbench.data.nuscenes import NuScenes
 from i2pbench.data.nuscenes_dataroot import build_dataroot
 from i2pbench.errors import DataError
 from i2pbench.pipeline import Combination
-from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import build_registry
 from i2pbench.runs.runner import run_grid
 from i2pbench.runs.store import ResultsStore
 

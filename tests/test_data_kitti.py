@@ -13,7 +13,7 @@ from i2pbench.data.kitti import KittiOdometry, camera_calib, read_frame
 from i2pbench.data.scanlines import recover_rings, scan_phase
 from i2pbench.errors import DataError
 from i2pbench.geometry import in_image, project
-from i2pbench.plugins import build_registry
+from i2pbench.registry.build import build_registry
 
 KITTI = SAMPLE_DATA / "kitti_odometry"
 IDS = ["00/000000", "00/000001", "00/000002", "00/000003", "00/000004", "01/000000"]

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from i2pbench.cli import COMMANDS, build_parser
-from i2pbench.hookspecs import HOOK_NAMES
+from i2pbench.registry.hookspecs import HOOK_NAMES
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"

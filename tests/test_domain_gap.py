@@ -25,7 +25,7 @@ from i2pbench.domain_gap import (
     summarize,
     to_markdown,
 )
-from i2pbench.plugins import default_registry
+from i2pbench.registry.build import default_registry
 
 ROOT = Path(__file__).resolve().parents[1]
 K = np.array([[10.0, 0.0, 2.0], [0.0, 10.0, 2.0], [0.0, 0.0, 1.0]])  # a point on the optical axis lands on (2, 2)

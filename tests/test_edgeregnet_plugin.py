@@ -7,7 +7,7 @@ from i2pbench_edgeregnet.matching import OptimalMatcher
 from i2pbench_edgeregnet.pointnet2 import PointNet2Encoder
 from i2pbench_edgeregnet.superpoint import SuperPointEncoder
 
-from i2pbench.plugins import build_registry
+from i2pbench.registry.build import build_registry
 
 
 def test_components_are_registered(monkeypatch):

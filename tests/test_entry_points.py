@@ -1,5 +1,5 @@
-"""The entry points kept between commands (i2pbench.entry_points) are what importlib.metadata finds at every step of
-installing, rewriting and removing a distribution, and are found anew only when one of those happened."""
+"""The entry points kept between commands (i2pbench.registry.entry_points) are what importlib.metadata finds at every
+step of installing, rewriting and removing a distribution, and are found anew only when one of those happened."""
 
 import importlib
 import importlib.metadata
@@ -9,8 +9,8 @@ import shutil
 import plugin_dists
 import pytest
 
-from i2pbench import entry_points
-from i2pbench.entry_points import EntryPoint, installed
+from i2pbench.registry import entry_points
+from i2pbench.registry.entry_points import EntryPoint, installed
 
 GROUP = "i2pbench"
 

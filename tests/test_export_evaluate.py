@@ -18,8 +18,8 @@ from i2pbench.boards import leaderboard
 from i2pbench.cli import main
 from i2pbench.data.kitti import KittiOdometry
 from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.plugins import build_registry, default_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import build_registry, default_registry
 from i2pbench.runs import frames
 from i2pbench.runs.runner import run_grid
 from i2pbench.runs.store import ResultsStore

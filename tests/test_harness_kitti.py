@@ -9,8 +9,8 @@ import pytest
 
 from i2pbench.boards import leaderboard
 from i2pbench.grid import expand
-from i2pbench.plugins import default_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import default_registry
 from i2pbench.runs.invocation import history
 from i2pbench.runs.runner import run_grid
 from i2pbench.runs.store import ResultsStore

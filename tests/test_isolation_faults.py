@@ -14,8 +14,8 @@ from i2pbench.errors import I2PBenchError
 from i2pbench.execution import isolation
 from i2pbench.execution.isolation import fingerprint, isolation_from_env
 from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import build_registry
 from i2pbench.runs.runner import run_grid
 from i2pbench.runs.store import ResultsStore
 

@@ -117,8 +117,9 @@ def test_training_stops_on_exploding_weights_and_keeps_the_last_good_checkpoint(
     from test_weights_and_training import LEARNED, Clean
 
     from i2pbench.pipeline import Combination, Pipeline
-    from i2pbench.plugins import build_registry
-    from i2pbench.training.trainer import TrainConfig, Trainer
+    from i2pbench.registry.build import build_registry
+    from i2pbench.training.config import TrainConfig
+    from i2pbench.training.loop import Trainer
     from i2pbench.weights import load_checkpoint
 
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
@@ -378,7 +379,7 @@ def test_rre_at_gimbal_lock_is_the_peers_number_without_a_warning():
 
     from scipy.spatial.transform import Rotation
 
-    from i2pbench.metrics.pose import pose_errors
+    from i2pbench.scoring.pose import pose_errors
 
     R = Rotation.from_euler("xzy", [10.0, 90.0, 20.0], degrees=True).as_matrix()  # z at 90 deg: locked
     T_pred = np.eye(4)

@@ -46,11 +46,11 @@ import sys
 sys.path.insert(0, {str(TESTS)!r})
 if __name__ == "__main__":
     import test_issue31_interrupt
-    from i2pbench import plugins
+    from i2pbench.registry import build
     from i2pbench.cli import main
 
-    registry = plugins.build_registry((test_issue31_interrupt.StallPlugin(),))
-    plugins.default_registry = lambda: registry
+    registry = build.build_registry((test_issue31_interrupt.StallPlugin(),))
+    build.default_registry = lambda: registry
     sys.exit(main())
 """
 

@@ -361,8 +361,8 @@ def test_a_conf_value_of_another_kind_than_its_default_is_refused_naming_the_key
 
 
 def test_a_cameras_string_is_refused_not_read_as_a_list_of_characters():
-    from i2pbench.components import ConfigError
     from i2pbench.data.nuscenes import NuScenes
+    from i2pbench.stages.config import ConfigError
 
     with pytest.raises(ConfigError, match=r"config cameras = 'CAM_FRONT' is a string, but cameras takes a list"):
         NuScenes("val", {"root": "/nowhere", "cameras": "CAM_FRONT"})
@@ -370,7 +370,7 @@ def test_a_cameras_string_is_refused_not_read_as_a_list_of_characters():
 
 
 def test_numbers_stand_for_each_other_and_none_goes_anywhere():
-    from i2pbench.components import merge_conf
+    from i2pbench.stages.config import merge_conf
 
     merged = merge_conf({"radius": 3.0, "count": 2, "name": "x", "auto": None}, {"radius": 4, "count": 2.5,
                         "name": None, "auto": [1]}, "test")  # fmt: skip
@@ -386,7 +386,7 @@ def test_a_radius_or_reprojection_bound_that_is_not_positive_is_refused(tmp_path
 
 
 def test_nan_is_refused_for_any_number_and_positive_lengths_pass():
-    from i2pbench.components import ConfigError, merge_conf
+    from i2pbench.stages.config import ConfigError, merge_conf
 
     defaults = {"confidence": 0.99, "pair_radius_px": 16.0, "offset": 1.0}
     with pytest.raises(ConfigError, match="test: config confidence = nan is no number to compare with"):

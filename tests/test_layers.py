@@ -10,7 +10,7 @@ import pytest
 
 import i2pbench.layers
 from i2pbench import layers
-from i2pbench.plugins import default_registry
+from i2pbench.registry.build import default_registry
 from i2pbench.runs.jobs import _described
 from i2pbench.runs.store import cache_key
 from i2pbench.training.samples import signature

@@ -15,7 +15,7 @@ from i2pbench.commands import plugins as plugins_command
 from i2pbench.errors import PluginError, WeightsError
 from i2pbench.grid import base_combinations, expand
 from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.plugins import build_registry
+from i2pbench.registry.build import build_registry
 from i2pbench.runs.runner import prepare
 from i2pbench.weights import file_digest, load_checkpoint, mismatch, save_checkpoint
 
@@ -58,7 +58,7 @@ def _saved(registry, tmp_path, row: int):
 def test_auto_weights_give_each_row_the_shipped_checkpoint_of_its_size_only(tmp_path):
     tiny = _saved(_registry(), tmp_path, row=1)
     registry = _registry(tiny)
-    assert registry.weights == [(str(tiny), "toy-method")]
+    assert registry.weights.owners() == {str(tiny): "toy-method"}
     jobs = prepare(registry, _rows(registry))
     assert [job.weights for job in jobs] == ["untrained", load_checkpoint(tiny).identity, "none"]
 
@@ -107,7 +107,7 @@ def test_a_methods_importer_writes_a_checkpoint_of_its_size_recording_the_source
 
 
 def _listing(registry, monkeypatch, capsys, *options: str) -> str:
-    monkeypatch.setattr("i2pbench.plugins.default_registry", lambda: registry)
+    monkeypatch.setattr("i2pbench.registry.build.default_registry", lambda: registry)
     assert plugins_command.run(argparse.Namespace(json="--json" in options)) == 0
     return capsys.readouterr().out
 
@@ -225,14 +225,14 @@ def test_edgeregnet_is_one_method_from_its_entry_point(monkeypatch):
     registry = build_registry()
     method = registry.method("edgeregnet")
     sizes = [s.name for s in method.sizes]
-    assert sizes == ["paper", "cpu-size", "official"] and registry.methods["edgeregnet"][1] == "edgeregnet"
+    assert sizes == ["paper", "cpu-size", "official"] and registry.methods.plugin("edgeregnet") == "edgeregnet"
     owned = {name for name, preset in registry.presets.items() if preset.method == "edgeregnet"}
     assert owned == {"default", "edgeregnet-full", "edgeregnet-official", "edge-ablation", "exchange-ablation",
                      "baselines"}  # fmt: skip
     official = registry.preset_rows("edgeregnet-official")[0]
     assert official["encoder2d"] == "superpoint-official" and official["matcher"] == "match-assignment-official"
     assert official["variant"] == "official" and official["confs"]["extractor2d"] == {"max_keypoints": 3000}
-    assert [path for path, _ in registry.weights] == [str(w) for w in method.weights] and len(method.weights) == 2
+    assert list(registry.weights) == [str(w) for w in method.weights] and len(method.weights) == 2
 
 
 class AblationPlugin:

@@ -7,19 +7,21 @@ import torch
 import toy_plugin
 from test_weights_and_training import LEARNED, Clean
 
-from i2pbench import plugins
 from i2pbench.api import Metric, hookimpl
 from i2pbench.boards import leaderboard, uncertainty
 from i2pbench.boards.regression_gate import compare, parse_tolerances
 from i2pbench.cli import main
 from i2pbench.errors import PluginError
-from i2pbench.metrics.installed import by_name
 from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.plugins import build_registry, components_of
 from i2pbench.protocol import Protocol
+from i2pbench.registry import build
+from i2pbench.registry.build import build_registry
+from i2pbench.registry.listing import components_of
 from i2pbench.runs.jobs import frame_key, prepare, upstream_key
 from i2pbench.runs.store import ResultsStore
-from i2pbench.training.trainer import TrainConfig, Trainer
+from i2pbench.scoring.installed import by_name
+from i2pbench.training.config import TrainConfig
+from i2pbench.training.loop import Trainer
 
 COLUMN = "keypoints per match ↓"
 
@@ -41,7 +43,7 @@ class MetricPlugin:
 def registry(monkeypatch):
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
     built = build_registry((toy_plugin, MetricPlugin()))
-    monkeypatch.setattr(plugins, "default_registry", lambda: built)  # what `run`, `evaluate` and training read
+    monkeypatch.setattr(build, "default_registry", lambda: built)  # what `run`, `evaluate` and training read
     return built
 
 

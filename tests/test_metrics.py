@@ -8,8 +8,10 @@ from conftest import SAMPLE_DATA, needs_sample
 from scipy.spatial.transform import Rotation
 
 from i2pbench.geometry import make_transform, rot_z
-from i2pbench.metrics.pose import pose_errors, summarize
 from i2pbench.protocol import Protocol
+from i2pbench.scoring.pose import kept, pose_errors
+from i2pbench.scoring.rules import ScoringRules
+from i2pbench.scoring.score import summarize
 
 VECTORS = SAMPLE_DATA / "metric_vectors.json"
 
@@ -61,24 +63,29 @@ def test_shared_metric_vectors():
         assert e.geodesic_deg == pytest.approx(case["rre_deg_geodesic"], abs=1e-4), case["name"]
 
 
+def _errors(rte: list[float], rre: list[float]) -> pd.DataFrame:
+    """per-frame errors as `scoring.score.frame_errors` gives them, every frame scored."""
+    return pd.DataFrame({"rte": rte, "rre": rre, "failed": np.isinf(rte), "scored": True})
+
+
 def test_accuracy_counts_every_frame_and_filtering_keeps_only_good_ones():
     # five frames: two successes, one "kept but not successful" (RRE 7), one outlier (RTE 6), one failed solve.
-    rte = pd.Series([0.5, 1.5, 1.0, 6.0, np.inf])
-    rre = pd.Series([1.0, 3.0, 7.0, 2.0, np.inf])
-    s = summarize(rte, rre, Protocol())
+    rte, rre = [0.5, 1.5, 1.0, 6.0, np.inf], [1.0, 3.0, 7.0, 2.0, np.inf]
+    s = summarize(_errors(rte, rre), ScoringRules())
     assert s["acc_pct"] == pytest.approx(40.0)  # 2 of 5
     assert s["kept"] == 3  # RRE < 10 and RTE < 5
+    assert kept(pd.Series(rte), pd.Series(rre), Protocol()).tolist() == [True, True, True, False, False]
     assert s["rte_mean"] == pytest.approx(1.0)  # (0.5 + 1.5 + 1.0) / 3
     assert s["rre_mean"] == pytest.approx(11.0 / 3)
     assert s["rte_std"] == pytest.approx(np.std([0.5, 1.5, 1.0]))
 
 
 def test_thresholds_are_parameters():
-    rte, rre = pd.Series([0.5, 1.5]), pd.Series([1.0, 3.0])
-    strict = Protocol(acc_rre_deg=2.0, acc_rte_m=1.0)
-    assert summarize(rte, rre, strict)["acc_pct"] == pytest.approx(50.0)
+    strict = ScoringRules(acc_rre_deg=2.0, acc_rte_m=1.0)
+    assert summarize(_errors([0.5, 1.5], [1.0, 3.0]), strict)["acc_pct"] == pytest.approx(50.0)
+    assert kept(pd.Series([0.5, 1.5]), pd.Series([1.0, 3.0]), Protocol(filter_rte_m=1.0)).tolist() == [True, False]
 
 
 def test_no_kept_frames_gives_nan_means():
-    s = summarize(pd.Series([np.inf]), pd.Series([np.inf]), Protocol())
+    s = summarize(_errors([np.inf], [np.inf]), ScoringRules())
     assert s["acc_pct"] == 0.0 and np.isnan(s["rte_mean"])

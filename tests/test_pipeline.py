@@ -4,8 +4,8 @@ import toy_plugin
 
 from i2pbench.errors import PluginError
 from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import build_registry
 from i2pbench.runs.runner import run_grid
 from i2pbench.runs.store import ResultsStore
 
@@ -66,7 +66,7 @@ def test_incompatible_combination_is_refused_before_running_naming_both(registry
         name = "needs-features"
         consumes = toy_plugin.PeekingMatcher.consumes | {"features2d"}
 
-    registry.components["matcher"]["needs-features"] = (NeedsFeatures, "test")
+    registry.components["matcher"].add("needs-features", NeedsFeatures, "test")
     with pytest.raises(PluginError, match="matcher 'needs-features' needs features2d, but encoder2d 'none'"):
         Pipeline.build(registry, Combination({**BASE, "matcher": "needs-features"}))
     Pipeline.build(registry, Combination({**BASE, "matcher": "needs-features", "encoder2d": "constant"}))

@@ -10,7 +10,7 @@ import toy_plugin
 
 from i2pbench.api import Extractor2D, hookimpl
 from i2pbench.errors import PluginError
-from i2pbench.plugins import build_registry
+from i2pbench.registry.build import build_registry
 
 BROKEN = {"broken": "i2pbench_no_such_module", "rival": "fault_plugin:rival"}
 

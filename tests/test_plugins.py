@@ -10,7 +10,8 @@ import toy_plugin
 
 from i2pbench.api import Extractor2D, hookimpl
 from i2pbench.errors import PluginError
-from i2pbench.plugins import build_registry, components_of
+from i2pbench.registry.build import build_registry
+from i2pbench.registry.listing import components_of
 
 
 @pytest.fixture

@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 
 from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.plugins import default_registry
+from i2pbench.registry.build import default_registry
 from i2pbench.testing import assert_conforms, synthetic_frame
 from i2pbench.types import Keypoints2D
 

@@ -25,9 +25,9 @@ import pandas as pd
 import pytest
 
 from i2pbench.geometry import invert
-from i2pbench.hookspecs import hookimpl
-from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import build_registry
+from i2pbench.registry.hookspecs import hookimpl
 from i2pbench.scoring import cards, installed
 from i2pbench.scoring.cards import NATIVE, ProtocolCard
 from i2pbench.scoring.rules import ScoringRules

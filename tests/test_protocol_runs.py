@@ -5,11 +5,11 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from i2pbench import plugins
 from i2pbench.boards import leaderboard
 from i2pbench.cli import main
-from i2pbench.hookspecs import hookimpl
 from i2pbench.protocol import Protocol
+from i2pbench.registry import build
+from i2pbench.registry.hookspecs import hookimpl
 from i2pbench.runs.store import ResultsStore
 from i2pbench.scoring import installed
 from i2pbench.scoring.cards import NATIVE, ProtocolCard
@@ -31,8 +31,8 @@ class Strict:
 
 @pytest.fixture
 def strict_installed(monkeypatch):
-    registry = plugins.build_registry(extra_plugins=(Strict(),))
-    monkeypatch.setattr(plugins, "default_registry", lambda: registry)
+    registry = build.build_registry(extra_plugins=(Strict(),))
+    monkeypatch.setattr(build, "default_registry", lambda: registry)
 
 
 def run(shared_data, runs, *extra: str) -> int:

@@ -8,10 +8,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from i2pbench.metrics.pose import summarize
 from i2pbench.protocol import Protocol
 from i2pbench.report import curves, html
 from i2pbench.report.rundir import best_and_worst, frame_score, pose
+from i2pbench.scoring.pose import success
 
 INF = math.inf
 
@@ -47,7 +47,7 @@ def test_accuracy_curve_meets_the_leaderboard_acc_at_the_protocol_thresholds():
     rng = np.random.default_rng(0)
     rte, rre = pd.Series(rng.uniform(0, 4, 50)), pd.Series(rng.uniform(0, 10, 50))
     at_threshold = curves.accuracy_pct(rte, rre, protocol.acc_rte_m, np.array([protocol.acc_rre_deg]))
-    assert at_threshold[0] == pytest.approx(summarize(rte, rre, protocol)["acc_pct"])
+    assert at_threshold[0] == pytest.approx(100 * success(rte, rre, protocol).mean())
 
 
 def test_frames_ordered_in_units_of_the_thresholds_failures_last():

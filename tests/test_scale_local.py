@@ -12,8 +12,8 @@ from i2pbench.boards import leaderboard
 from i2pbench.errors import I2PBenchError
 from i2pbench.grid import expand
 from i2pbench.pipeline import Combination
-from i2pbench.plugins import build_registry, default_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import build_registry, default_registry
 from i2pbench.runs import executors
 from i2pbench.runs.executors import LocalExecutor, Plan, Task, make_executor
 from i2pbench.runs.invocation import history

@@ -14,8 +14,8 @@ from i2pbench.boards import leaderboard
 from i2pbench.data.kitti import KittiOdometry
 from i2pbench.grid import expand
 from i2pbench.pipeline import Combination
-from i2pbench.plugins import default_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import default_registry
 from i2pbench.runs import executors, ray_executor
 from i2pbench.runs.ray_executor import RayExecutor
 from i2pbench.runs.runner import prepare, run_grid

@@ -19,7 +19,7 @@ from i2pbench.data.synthetic.dataset import MARKER, default_root, generate, mark
 from i2pbench.data.synthetic.kitti_writer import simulate
 from i2pbench.data.synthetic.style import DEFAULT, STYLES, Style, get_style
 from i2pbench.errors import DataError
-from i2pbench.plugins import default_registry
+from i2pbench.registry.build import default_registry
 
 FRAME = (0, "01", 0)  # seed, sequence, index: one full-size val frame (~1 s to simulate)
 

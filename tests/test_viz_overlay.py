@@ -12,7 +12,7 @@ from i2pbench.cli import main
 from i2pbench.commands.viz import resolve_frame
 from i2pbench.geometry import in_image, project
 from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.plugins import default_registry
+from i2pbench.registry.build import default_registry
 from i2pbench.report import draw, overlay
 from i2pbench.testing.frames import kitti_frame, synthetic_frame, with_image
 

@@ -8,11 +8,13 @@ import toy_plugin
 from i2pbench.api import Extractor2D, Keypoints2D, hookimpl
 from i2pbench.errors import PluginError, WeightsError
 from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.plugins import build_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import build_registry
 from i2pbench.runs.runner import prepare, run_grid
 from i2pbench.runs.store import ResultsStore
-from i2pbench.training.trainer import TrainConfig, Trainer, training_meta
+from i2pbench.training.config import TrainConfig
+from i2pbench.training.lineage import training_meta
+from i2pbench.training.loop import Trainer
 from i2pbench.weights import apply_checkpoint, data_label, load_checkpoint, save_checkpoint, select_checkpoint
 
 LEARNED = {
@@ -147,7 +149,7 @@ def test_auto_weights_pick_a_shipped_checkpoint_only_when_every_stage_fits(regis
     assert select_checkpoint(_pipeline(registry), "auto", [path]) is not None
     assert select_checkpoint(_pipeline(registry, encoder2d={"dim": 8}), "auto", [path]) is None
     assert select_checkpoint(_pipeline(registry), "untrained", [path]) is None
-    registry.weights.append((path, "test"))
+    registry.weights.add(path, path, "test")
     assert prepare(registry, [Combination(LEARNED)])[0].weights.startswith("toy@")
 
 
@@ -342,8 +344,8 @@ class Five(toy_plugin.ToyDataset):
 
 
 def test_epochs_pass_through_every_frame_once_in_a_seeded_order(registry):
+    from i2pbench.training.loop import steps_for_epochs
     from i2pbench.training.samples import TrainingSamples
-    from i2pbench.training.trainer import steps_for_epochs
 
     stages = _pipeline(registry).stages
     samples = TrainingSamples(stages, Five("test"), seed=3, epochs=True)

@@ -12,9 +12,9 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import pandas as pd
 
-from ..metrics.installed import by_name
-from ..metrics.registry import BUILTIN
 from ..protocol import Protocol
+from ..scoring.installed import by_name
+from ..scoring.metrics import BUILTIN
 from .leaderboard import ACC_SKILL, TRUE_MATCHES
 
 BOOTSTRAP_DRAWS = 2000
@@ -46,7 +46,7 @@ def scene_bootstrap(
 
 def registered(records: pd.DataFrame, protocol: Protocol) -> np.ndarray:
     """[F] 1.0 where a frame is registered with true matches, else 0.0: the per-frame values of the leaderboard's
-    'Acc. with true matches' metric (metrics.registry), not a second definition of it."""
+    'Acc. with true matches' metric (scoring.metrics), not a second definition of it."""
     return by_name(BUILTIN)["skill_acc_pct"].per_frame(records, protocol)
 
 

@@ -18,10 +18,13 @@ import numpy as np
 import pandas as pd
 
 from ..components import STAGE_ORDER
-from ..metrics import installed as installed_metrics
-from ..metrics import registry as metric_registry
-from ..metrics.pose import summarize
-from ..metrics.registry import (  # noqa: F401 (the board's column names, read from here by the other modules)
+from ..protocol import Protocol
+from ..scoring import installed as installed_metrics
+from ..scoring import metrics as metric_registry
+from ..scoring import recall
+from ..scoring.cards import label
+from ..scoring.installed import rescored
+from ..scoring.metrics import (  # noqa: F401 (the board's column names, read from here by the other modules)
     ACC,
     ACC_SKILL,
     CHANCE,
@@ -34,10 +37,7 @@ from ..metrics.registry import (  # noqa: F401 (the board's column names, read f
     TRUE_MATCHES,
     Metric,
 )
-from ..protocol import Protocol
-from ..scoring import recall
-from ..scoring.cards import label
-from ..scoring.installed import rescored
+from ..scoring.pose import kept
 from . import uncertainty
 
 GROUP = ["dataset", "split", "combination", "weights"]
@@ -99,7 +99,7 @@ def _row(records: pd.DataFrame, protocol: Protocol, metrics: tuple[Metric, ...])
         "frames": len(records),
         "failures": int((records["status"] != "ok").sum()),
         # frames inside the protocol's filter, over which RTE and RRE are averaged
-        "kept": summarize(records["rte_m"], records["rre_deg"], protocol)["kept"],
+        "kept": int(kept(records["rte_m"], records["rre_deg"], protocol).sum()),
         **{column: cells.pop(column) for column in ORDER if column in cells},
         MODEL_SIZE: round(float(first["model_size_mb"]), 3),
         **_latency(records),
@@ -139,12 +139,11 @@ def build(
 def _methods(board: pd.DataFrame) -> list[str]:
     """Each row's method (DeepI2P, EdgeRegNet, ...; "classic" for the classic plugin's matchers), as the installed
     plugins declare them (`methods.method_of`)."""
-    from ..methods import method_of
-    from ..plugins import default_registry
+    from ..registry.build import default_registry
+    from ..registry.methods import method_of
 
     registry = default_registry()
-    methods = {name: method for name, (method, _) in registry.methods.items()}
-    owner = {name: plugin for name, (_, plugin) in registry.components["matcher"].items()}
+    methods, owner = dict(registry.methods), registry.components["matcher"].owners()
     stages = board[list(STAGE_ORDER)].astype(str).to_dict("records")
     return [method_of(methods, owner, row) for row in stages]
 

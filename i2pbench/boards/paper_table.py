@@ -19,8 +19,8 @@ import pandas as pd
 
 from ..errors import I2PBenchError
 from ..grid import expand
-from ..metrics import installed as installed_metrics
-from ..plugins import Registry
+from ..registry.catalog import Registry
+from ..scoring import installed as installed_metrics
 from . import uncertainty
 from .leaderboard import ACC, ACC_SKILL, CHANCE, LATENCY_MEDIAN, MODEL_SIZE, RRE, RTE, TRUE_MATCHES, to_markdown
 

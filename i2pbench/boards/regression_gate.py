@@ -5,7 +5,7 @@ way by more than its tolerance, when it becomes NaN where the baseline had a val
 filter any more), or when its frame count changes; a baseline row missing from the new leaderboard is a failure too.
 Tolerances are absolute for accuracy metrics (`acc=-2`: at most 2 points lower) and ratios for latency
 (`latency=x1.5`: at most 1.5 times slower), because seconds mean nothing across machines. A metric a plugin
-registers (`metrics.registry`) is checked under its name.
+registers (`scoring.metrics`) is checked under its name.
 
 When both boards keep per-frame values of a row on the same frames (`uncertainty`), every checked metric that moved
 is tested paired: McNemar's exact test for Acc., a paired bootstrap for RTE and RRE, and the report says whether the
@@ -30,8 +30,8 @@ import pandas as pd
 
 from ..components import STAGE_ORDER
 from ..errors import I2PBenchError
-from ..metrics import installed as installed_metrics
-from ..metrics import registry as metric_registry
+from ..scoring import installed as installed_metrics
+from ..scoring import metrics as metric_registry
 from . import uncertainty
 from .leaderboard import (
     ACC,

@@ -16,8 +16,8 @@ from collections.abc import Iterable
 import numpy as np
 import pandas as pd
 
-from ..metrics.registry import Metric
 from ..protocol import Protocol
+from ..scoring.metrics import Metric
 from . import stats
 
 DIGEST = "frames digest"

@@ -56,8 +56,8 @@ def run(args: argparse.Namespace) -> int:
     from ..data.skipping import loaded_frames
     from ..diagnostics import edge_diagnostics_grid, summarize_edge_diagnostics
     from ..errors import I2PBenchError
-    from ..plugins import default_registry
     from ..protocol import Protocol
+    from ..registry.build import default_registry
 
     registry = default_registry()
     dataset = open_dataset(registry, args)

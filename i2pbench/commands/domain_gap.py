@@ -97,8 +97,8 @@ def run(args: argparse.Namespace) -> int:
     from ..data.skipping import loaded_frames
     from ..domain_gap import gap_extractors, side_by_side, summarize_frames, to_markdown
     from ..errors import I2PBenchError
-    from ..plugins import default_registry
     from ..protocol import Protocol
+    from ..registry.build import default_registry
 
     if args.out and Path(args.out).suffix not in OUT_SUFFIXES:
         raise I2PBenchError(f"--out {args.out}: expected a .csv or .md file")

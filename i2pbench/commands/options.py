@@ -159,8 +159,8 @@ def open_dataset(registry, args: argparse.Namespace):
 
 def chosen_combinations(registry, args: argparse.Namespace):
     """The combinations the stage options, --preset, --grid and --conf name (CLI options winning over the grid file)."""
-    from ..components import overlay
     from ..grid import base_combinations, expand, parse_conf_overrides
+    from ..stages.config import overlay
 
     choices = stage_choices(args)
     bases = base_combinations(registry, args.preset, stages_named=bool(choices or args.grid))
@@ -175,7 +175,7 @@ def chosen_combinations(registry, args: argparse.Namespace):
 def check_confs(registry, combinations) -> None:
     """Each stage's config merged over its defaults before any folder is made: an unknown key or a value of another
     kind is refused while nothing is written (Pipeline.build checks the same, but after the run's store exists)."""
-    from ..components import merge_conf
+    from ..stages.config import merge_conf
 
     for combination in combinations:
         for kind, conf in combination.confs.items():

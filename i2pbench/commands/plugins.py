@@ -18,7 +18,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..plugins import default_registry
+    from ..registry.build import default_registry
 
     registry = default_registry()
     rows = [_row(registry, info) for info in registry.plugins]
@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _row(registry: Any, info: Any) -> dict[str, Any]:
-    from ..plugins import aliases_of, components_of, methods_of, paths_of
+    from ..registry.listing import aliases_of, components_of, methods_of, paths_of
 
     return {
         "plugin": info.name,

@@ -114,7 +114,7 @@ def _prepare(args: argparse.Namespace):
     from ..boards.out_stem import board_stem
     from ..errors import DataError
     from ..execution.devices import resolve_device_name
-    from ..plugins import default_registry
+    from ..registry.build import default_registry
     from ..runs.environment import fix_threads
     from ..scoring.installed import for_run
 

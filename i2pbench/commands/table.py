@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     from ..boards.out_stem import board_stem
     from ..boards.regression_gate import read_board
     from ..errors import I2PBenchError, os_problem
-    from ..plugins import default_registry
+    from ..registry.build import default_registry
     from ..runs.board_env import board_warnings
 
     args.out = board_stem(args.out, (".csv", ".md"))  # a device, pipe or folder refused before any board is read

@@ -216,9 +216,10 @@ def run(args: argparse.Namespace) -> int:
     from ..execution.devices import resolve_device
     from ..execution.isolation import isolated
     from ..pipeline import Pipeline
-    from ..plugins import default_registry
+    from ..registry.build import default_registry
     from ..runs.environment import fix_threads
-    from ..training.trainer import Trainer, steps_for_epochs, training_meta
+    from ..training.lineage import training_meta
+    from ..training.loop import Trainer, steps_for_epochs
 
     device = resolve_device(args.device)
     fix_threads(args.threads)
@@ -248,7 +249,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _announce(trainer, train_set, mix, resumed: str) -> None:
     """What trains, on what data, at which effective batch, resumed or compiled (by rank 0 only)."""
-    from ..training.trainer import data_identity
+    from ..training.lineage import data_identity
     from ..weights import data_label
 
     if not trainer.dist.main:

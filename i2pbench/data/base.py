@@ -8,8 +8,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
-from ..components import merge_conf
 from ..errors import DataError, I2PBenchError
+from ..stages.config import merge_conf
 
 if TYPE_CHECKING:
     from ..types import SensorFrame

@@ -2,7 +2,7 @@
 imports, e.g. SciPy for nuScenes, the devkit only when that dataset is used) loads when the dataset is opened, and the
 corruptions' (OpenCV) when a run corrupts its frames; and the built-in protocol cards (i2pbench.scoring.cards)."""
 
-from ..hookspecs import hookimpl
+from ..registry.hookspecs import hookimpl
 
 CORRUPTIONS = {
     "gaussian-noise": "GaussianNoise",

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..errors import I2PBenchError, IsolationError
 from ..pipeline import Pipeline
-from ..trace import FrameOutcome, StageRecord
+from ..stages.trace import FrameOutcome, StageRecord
 from .interrupts import ignore_held_sigint, sigint_held
 from .lifeline import exit_with_parent
 from .timeout import StageTimeout

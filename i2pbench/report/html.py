@@ -20,7 +20,7 @@ import pandas as pd
 
 from ..boards import leaderboard as lb
 from ..boards import uncertainty
-from ..metrics import installed as installed_metrics
+from ..scoring import installed as installed_metrics
 from ..scoring.installed import rescored
 from . import curves, framesets, overlay, robustness, sequences
 from .examples import Example, render_examples

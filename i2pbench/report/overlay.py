@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import I2PBenchError
 from ..geometry import project
-from ..metrics.pose import pose_errors
+from ..scoring.pose import pose_errors
 from ..types import Frame, Keypoints2D, Keypoints3D, Matches
 from . import draw
 

@@ -24,8 +24,8 @@ from matplotlib.lines import Line2D
 from ..boards import leaderboard as lb
 from ..corruptions import MAX_LEVELS, Corruption
 from ..errors import DataError, I2PBenchError
-from ..plugins import default_registry
 from ..protocol import Protocol
+from ..registry.build import default_registry
 from ..runs.store import ResultsStore
 from ..types import Frame, SensorFrame
 from . import draw, overlay

@@ -3,7 +3,7 @@
 The records of one invocation's grid (its combinations, frames and protocol, as its `invocations/<id>.json` file
 lists them) are read back, their pose errors recomputed from the stored T_pred and T_gt, and the leaderboard built
 under the run's protocol card, or under other success and filter thresholds, with every registered metric
-(`metrics.registry`): one a plugin adds is aggregated from the per-frame values its records stored.
+(`scoring.metrics`): one a plugin adds is aggregated from the per-frame values its records stored.
 """
 
 from __future__ import annotations
@@ -22,10 +22,10 @@ import pandas as pd
 from .. import __version__
 from ..boards import leaderboard
 from ..errors import I2PBenchError
-from ..metrics import installed as installed_metrics
-from ..metrics.pose import FAILED, pose_errors
-from ..metrics.registry import Scored
 from ..protocol import Protocol
+from ..scoring import installed as installed_metrics
+from ..scoring.metrics import Scored
+from ..scoring.pose import FAILED, pose_errors
 from .invocation import history, record_file, written_by
 from .store import ResultsStore
 

@@ -31,8 +31,8 @@ from ..errors import I2PBenchError
 from ..execution.interrupts import Interrupted, ignore_held_sigint, sigint_held
 from ..execution.lifeline import exit_with_parent
 from ..pipeline import Combination
-from ..plugins import Registry
 from ..protocol import Protocol
+from ..registry.catalog import Registry
 from .frames import save
 from .jobs import Job, frame_key, labels, prepare
 from .store import ResultsStore

@@ -26,11 +26,11 @@ from ..components import STAGE_ORDER
 from ..corruptions import CorruptionError
 from ..data.base import Dataset
 from ..errors import I2PBenchError
-from ..metrics.installed import record_values
-from ..metrics.pose import pose_errors
-from ..metrics.registry import Scored
 from ..pipeline import FrameOutcome
 from ..protocol import Protocol
+from ..scoring.installed import record_values
+from ..scoring.metrics import Scored
+from ..scoring.pose import pose_errors
 from ..types import Frame, PoseEstimate
 from .environment import threads
 from .jobs import Job, labels, upstream_key

@@ -17,8 +17,8 @@ from ..components import Component
 from ..data.base import Dataset
 from ..execution.isolation import isolated
 from ..pipeline import Combination, Pipeline, stage_classes
-from ..plugins import Registry
 from ..protocol import Protocol
+from ..registry.catalog import Registry
 from ..weights import apply_checkpoint, select_checkpoint
 from . import weights_choice
 from .environment import sync_torch_threads
@@ -75,7 +75,7 @@ def prepare(
 ) -> list[Job]:
     """Build every pipeline before any frame runs, so an incompatible combination is refused up front; `dataset`
     (a name) lets `--weights auto` prefer shipped weights trained on it."""
-    shipped = [path for path, _ in registry.weights]
+    shipped = list(registry.weights)
     jobs = []
     for combination in combinations:
         pipeline = _build(registry, combination)

@@ -12,8 +12,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from ..data.base import Dataset
-from ..metrics.registry import true_matches
 from ..protocol import Protocol
+from ..scoring.metrics import true_matches
 from .executors import InProcessExecutor, run_grid, run_work
 from .frames import run_frame
 from .jobs import Job, frame_key, prepare

@@ -1,7 +1,11 @@
-"""Protocol cards (each paper's inputs and scoring rules, named and versioned) and scoring under them.
+"""What a result is scored by: pose errors, metrics, protocol cards and their scoring rules, side by side.
 
-`rules` scores per-frame poses under one card's rules; `cards` declares the cards; `installed` finds them by name
-(built-in and plugin ones, `register_protocols`) and scores records under a run's card; `table` re-scores a finished
-run under every card's rules; `recall` gives registration recall at thresholds, error percentiles and the per-sequence
-breakdown.
+- `pose`: RTE, RRE (the peers' 'xzy' Euler sum) and the geodesic angle of one estimate; success and the filter a
+  board averages over, under a protocol;
+- `metrics`: the `Metric` declarations, the built-in ones (`BUILTIN`) and the check of a plugin's;
+- `rules`: one paper's scoring rules (`ScoringRules`); `cards`: the protocol cards declaring them;
+- `score`: per-frame poses scored under a card's rules, and the one `summarize`;
+- `installed`: the metrics and cards in force (built-ins, then the plugins'), records scored under a run's card;
+- `table`: a finished run re-scored under every card's rules; `recall`: registration recall at thresholds, error
+  percentiles and the per-sequence breakdown.
 """

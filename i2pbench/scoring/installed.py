@@ -1,25 +1,55 @@
-"""The installed protocol cards (the default, then those the plugins register) found by name, and records scored
-under the card a run was made with."""
+"""What scores a run here: the metrics in force (i2pbench's own, `metrics.BUILTIN`, then those the installed plugins
+register) and what the store, boards and training validation compute from them; the installed protocol cards (the
+default, then those the plugins register) found by name, and records scored under the card a run was made with."""
 
 from __future__ import annotations
 
 import difflib
-from typing import TYPE_CHECKING
+from collections.abc import Iterable
+from typing import Any
 
-from .. import plugins
+import numpy as np
+import pandas as pd
+
 from ..errors import I2PBenchError
 from ..protocol import Protocol
+from ..registry import build
 from .cards import DEFAULT_NAME, DEFAULT_VERSION, EDGEREGNET, ProtocolCard
+from .metrics import BUILTIN, Metric, Scored
 from .score import frame_errors
 
-if TYPE_CHECKING:
-    import pandas as pd
+
+def active() -> tuple[Metric, ...]:
+    """The built-in metrics, then those the installed plugins register (in plugin order)."""
+    return BUILTIN + tuple(build.default_registry().metrics.values())
+
+
+def record_values(scored: Scored, metrics: Iterable[Metric] | None = None) -> dict[str, float]:
+    """A frame's per-frame metrics, as its record stores them."""
+    return {m.name: m.frame(scored) for m in (active() if metrics is None else metrics) if m.frame is not None}
+
+
+def aggregates(records: pd.DataFrame, protocol: Protocol, metrics: Iterable[Metric] | None = None) -> dict[str, Any]:
+    """A row's aggregates by metric name (stds as `Metric.std`): what training validation reports."""
+    out: dict[str, Any] = {}
+    for metric in active() if metrics is None else metrics:
+        if metric.column is None:
+            continue
+        values = metric.per_frame(records, protocol)
+        out[metric.name] = metric.reduce(values)
+        if metric.std:
+            kept = pd.Series(values, dtype=float).dropna()
+            out[metric.std] = float(kept.std(ddof=0)) if len(kept) else np.nan
+    return out
+
+
+def by_name(metrics: Iterable[Metric] | None = None) -> dict[str, Metric]:
+    return {m.name: m for m in (active() if metrics is None else metrics)}
 
 
 def installed(registry=None) -> dict[str, ProtocolCard]:
     """Every registered card by name, the default first (present even when every plugin is blocked)."""
-    table = (registry or plugins.default_registry()).protocols
-    return {EDGEREGNET.name: EDGEREGNET, **{name: card for name, (card, _) in table.items()}}
+    return {EDGEREGNET.name: EDGEREGNET, **(registry or build.default_registry()).protocols}
 
 
 def find(name: str, registry=None) -> ProtocolCard:

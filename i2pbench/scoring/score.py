@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from ..geometry import invert
-from ..metrics.pose import xzy_euler_deg
+from .pose import xzy_euler_deg
 from .rules import ScoringRules
 
 

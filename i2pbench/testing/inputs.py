@@ -2,8 +2,8 @@
 
 Keypoints are true correspondences (3D points in view and their projections, plus a few unmatched pixels), so a
 matcher or solver sees a solvable problem; descriptors are seeded random unit vectors. The kit hands them to a stage
-through `i2pbench.calling.call_stage`, the pipeline's own call, so values a component does not declare in `consumes`
-are withheld exactly as in a run: T_gt is hidden, and a matcher that does not declare features gets
+through `i2pbench.stages.calling.call_stage`, the pipeline's own call, so values a component does not declare in
+`consumes` are withheld exactly as in a run: T_gt is hidden, and a matcher that does not declare features gets
 `Features(None, None)`.
 """
 
@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..calling import StageInputs
 from ..components import Component
 from ..geometry import in_image, project
+from ..stages.calling import StageInputs
 from ..types import Features, Frame, Keypoints2D, Keypoints3D, Matches
 
 DEFAULT_DIM = 32  # descriptor width when the component's conf has no `descriptor_dim`

@@ -13,8 +13,8 @@ Checks, in order (each problem names its check and what went wrong):
   no matches must answer PoseEstimate.failed), never an exception;
 - bad input (NaN points, a negative-stride image, coincident points): an exception with a message, or a valid
   output; never garbage and never a bare exception.
-Every call is the pipeline's own (`i2pbench.calling.call_stage`: the declared view, then the contract check), so a
-contract problem reads as the error a run would record for that output. Latency on the sample frame is measured and
+Every call is the pipeline's own (`i2pbench.stages.calling.call_stage`: the declared view, then the contract check),
+so a contract problem reads as the error a run would record for that output. Latency on the sample frame is measured and
 reported, never asserted.
 """
 
@@ -26,12 +26,13 @@ from typing import Any
 
 import torch
 
-from ..calling import StageInputs, call_stage
-from ..components import EXTRA_VALUES, STAGE_BASES, STAGE_ORDER, Component, ConfigError
-from ..contracts import ContractError
+from ..components import EXTRA_VALUES, STAGE_BASES, STAGE_ORDER, Component
 from ..errors import StageError
 from ..learned import LearnedComponent
-from ..trace import StageRecord
+from ..stages.calling import StageInputs, call_stage
+from ..stages.config import ConfigError
+from ..stages.contracts import ContractError
+from ..stages.trace import StageRecord
 from ..types import Frame
 from .cases import Case, bad_cases, empty_cases
 from .frames import synthetic_frame

@@ -7,7 +7,8 @@ import functools
 from typing import Any
 
 from ..components import STAGES, Component
-from ..plugins import LazyComponent, plugin_alone
+from ..registry.lazy import LazyComponent
+from ..registry.loading import plugin_alone
 
 
 def registered_components(plugin: object) -> list[type[Component]]:

@@ -3,7 +3,7 @@
 A stage that subclasses `i2pbench.learned.BatchedStage` (its contract: `prepare` one frame, `forward` a padded
 batch, `batch_loss` for a trainable matcher) is prepared per frame here and run on the collated batch. A stage
 without it still trains: it runs frame by frame inside the batch (slower, same result), each call through
-`i2pbench.calling.call_stage` as in a run (declared view, contract check), with autograd on.
+`i2pbench.stages.calling.call_stage` as in a run (declared view, contract check), with autograd on.
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from ..calling import StageInputs, call_stage
 from ..components import LEARNABLE_KINDS, Component
 from ..learned import BatchedStage
+from ..stages.calling import StageInputs, call_stage
 from ..types import Features, Frame, Keypoints2D, Keypoints3D
 
 LEARNED_KINDS = LEARNABLE_KINDS  # the stages a batch runs through, in data-flow order

@@ -17,8 +17,8 @@ import pytest
 from conftest import SAMPLE_DATA, sample
 
 from i2pbench.pipeline import Combination
-from i2pbench.plugins import default_registry
 from i2pbench.protocol import Protocol
+from i2pbench.registry.build import default_registry
 from i2pbench.runs.runner import prepare, run_frame, run_job
 from i2pbench.runs.store import ResultsStore
 

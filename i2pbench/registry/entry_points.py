@@ -22,7 +22,7 @@ import zlib
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
-from .paths import cache_home
+from ..paths import cache_home
 
 if TYPE_CHECKING:
     from importlib.metadata import Distribution

@@ -3,7 +3,7 @@ all go through, so what a component sees and what it must return are the same wh
 
 A component sees the frame with its ground truth hidden unless it declares GROUND_TRUTH, and descriptors only on the
 sides it declares (FEATURES2D, FEATURES3D); its output is checked against its kind's contract
-(`i2pbench.contracts`) before anything reads it. Gradients are the caller's choice: a benchmark run calls under
+(`contracts`) before anything reads it. Gradients are the caller's choice: a benchmark run calls under
 torch.inference_mode, training with autograd on.
 """
 
@@ -12,10 +12,11 @@ from __future__ import annotations
 import sys
 import time
 
+from ..components import FEATURES2D, FEATURES3D, GROUND_TRUTH, STAGES, Component
+from ..types import Features, Frame
 from . import contracts
-from .components import FEATURES2D, FEATURES3D, GROUND_TRUTH, Component
-from .trace import StageInputs, StageRecord
-from .types import Features, Frame
+from .inputs import StageInputs
+from .trace import StageRecord
 
 
 def declared_view(component: Component, frame: Frame, features: Features) -> tuple[Frame, Features]:
@@ -32,7 +33,7 @@ def call_stage(component: Component, frame: Frame, inputs: StageInputs) -> Stage
     """Call `component` as a stage of its kind: the declared view, then the call (timed alone), then the contract
     check of its output (a `contracts.ContractError` naming it)."""
     view, features = declared_view(component, frame, inputs.features)
-    args = inputs.arguments(component.kind, features)
+    args = STAGES[component.kind].arguments(inputs, features)
     start = time.perf_counter()
     out = component(view, *args)
     _synchronize()

@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .components import LEARNABLE_KINDS, STAGE_ORDER
-from .errors import PluginError
+from ..components import LEARNABLE_KINDS, STAGE_ORDER
+from ..errors import PluginError
 
 Confs = Mapping[str, Mapping[str, Any]]  # stage kind -> config overrides
 

@@ -1,21 +1,22 @@
 """A frame's trace: what each stage of one run returned and how long it took, in order, and what stopped it.
 
-`Pipeline.run` is the only code that calls stages, and this is all it returns, so a benchmark record, a stored
-upstream, `viz`'s panels and the training path read the same values instead of calling stages again. A record holds
-a stage's output after its contract check (`i2pbench.calling`); a failed frame keeps the records of the stages that
-finished before the failure.
+Every stage call goes through `calling.call_stage`, and `Pipeline.run` returns no more than this, so a benchmark
+record, a stored upstream, `viz`'s panels and training validation read the same values instead of calling stages
+again. A record holds a stage's output after its contract check (`calling`); a failed frame keeps the records of the
+stages that finished before the failure.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from .components import STAGES
-from .types import Features, Keypoints2D, Keypoints3D, Matches, PoseEstimate
+from ..components import STAGES
+from ..types import Features, Keypoints2D, Keypoints3D, Matches, PoseEstimate
+from .inputs import StageInputs
 
 
 @dataclass(frozen=True)
@@ -27,28 +28,6 @@ class StageRecord:
     component: str
     output: Any
     seconds: float | None
-
-
-@dataclass(frozen=True)
-class StageInputs:
-    """What the stages before one have produced so far: the values a stage of any kind may be handed."""
-
-    kp2d: Keypoints2D | None = None
-    kp3d: Keypoints3D | None = None
-    features: Features = field(default_factory=lambda: Features(None, None))
-    matches: Matches | None = None
-
-    def after(self, record: StageRecord) -> StageInputs:
-        """These inputs with a finished stage's output put where its kind's `StageKind.output` says."""
-        name, _, side = STAGES[record.kind].output.partition(".")
-        if not name:  # the solver's: nothing reads it
-            return self
-        out = replace(self.features, **{side: record.output}) if side else record.output
-        return replace(self, **{name: out})
-
-    def arguments(self, kind: str, features: Features) -> tuple[Any, ...]:
-        """What a stage of `kind` is called with after the frame (`features`: the sides it declares)."""
-        return tuple(features if name == "features" else getattr(self, name) for name in STAGES[kind].inputs)
 
 
 @dataclass(frozen=True)
@@ -100,12 +79,12 @@ class FrameOutcome:
 
     @property
     def produced(self) -> StageInputs:
-        """What the finished stages produced, each output where the stages after it read it (`StageInputs.after`):
+        """What the finished stages produced, each output where the stages after it read it (`StageKind.put`):
         the descriptors as the exchanger left them, a side None where no encoder ran. A stage sees only the sides it
-        declares (`i2pbench.calling.declared_view`)."""
+        declares (`calling.declared_view`)."""
         produced = StageInputs()
         for record in self.records:
-            produced = produced.after(record)
+            produced = STAGES[record.kind].put(produced, record.output)
         return produced
 
     @property

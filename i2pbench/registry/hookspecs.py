@@ -74,7 +74,7 @@ def register_presets(register: Register) -> None:
 
 @hookspec
 def register_methods(register: Register) -> None:
-    """Register learned methods: `register(i2pbench.methods.Method(...))`, one object naming a method's stage
+    """Register learned methods: `register(i2pbench.registry.methods.Method(...))`, one object naming a method's stage
     components, its sizes (named stage configs), its presets (rows built from a size, stages swapped) and its shipped
     checkpoints. Its presets and weights are registered with it: no `register_presets` needed."""
 
@@ -89,7 +89,7 @@ def register_corruptions(register: Register) -> None:
 def register_metrics(register: Register) -> None:
     """Register `i2pbench.api.Metric`s: `register(Metric(...))`, a per-frame value stored in every record and its
     aggregate as a leaderboard column, read by `run`, `evaluate`, training validation and `compare`
-    (`i2pbench.metrics.registry` says how to declare one)."""
+    (`i2pbench.scoring.metrics` says how to declare one)."""
 
 
 @hookspec

@@ -52,19 +52,7 @@ def success(rte: pd.Series, rre: pd.Series, protocol: Protocol) -> pd.Series:
     return (rre < protocol.acc_rre_deg) & (rte < protocol.acc_rte_m)
 
 
-def summarize(rte: pd.Series, rre: pd.Series, protocol: Protocol) -> dict[str, float]:
-    """Acc. over ALL frames (failures count); mean and std over the frames the protocol's filter keeps.
-
-    Std is the population std (numpy's default), as the peers' evaluation scripts compute it.
-    """
+def kept(rte: pd.Series, rre: pd.Series, protocol: Protocol) -> pd.Series:
+    """The frames inside the protocol's filter, over which a board averages RTE and RRE (a failure never is)."""
     rte, rre = pd.Series(rte, dtype=float), pd.Series(rre, dtype=float)
-    kept = (rre < protocol.filter_rre_deg) & (rte < protocol.filter_rte_m)
-    nan = float("nan")
-    return {
-        "acc_pct": 100.0 * float(success(rte, rre, protocol).mean()) if len(rte) else nan,
-        "rte_mean": float(rte[kept].mean()) if kept.any() else nan,
-        "rte_std": float(rte[kept].std(ddof=0)) if kept.any() else nan,
-        "rre_mean": float(rre[kept].mean()) if kept.any() else nan,
-        "rre_std": float(rre[kept].std(ddof=0)) if kept.any() else nan,
-        "kept": int(kept.sum()),
-    }
+    return (rre < protocol.filter_rre_deg) & (rte < protocol.filter_rte_m)

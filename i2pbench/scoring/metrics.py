@@ -2,7 +2,7 @@
 
 The results store (`runs.frames`), the leaderboard (`leaderboard.build`, so `run` and `evaluate`), training
 validation and `compare --tolerance NAME=...` all read the `Metric`s here, with the plugins' ones
-(`metrics.installed`); none spells a metric out itself.
+(`scoring.installed`); none spells a metric out itself.
 
 To add a metric, declare it and register it from a plugin (or append it to BUILTIN for a core one):
 
@@ -33,10 +33,10 @@ import pandas as pd
 
 from ..errors import PluginError
 from ..protocol import Protocol
-from .pose import PoseErrors, success
+from .pose import PoseErrors, kept, success
 
 if TYPE_CHECKING:
-    from ..trace import FrameOutcome
+    from ..stages.trace import FrameOutcome
     from ..types import Frame
 
 ACC, RTE, RRE = "Acc. (%) ↑", "RTE (m) ↓", "RRE (°) ↓"
@@ -112,9 +112,8 @@ def _kept_errors(column: str) -> Values:
     """A pose error on the frames inside the protocol's filter (NaN elsewhere): what RTE and RRE average."""
 
     def values(records: pd.DataFrame, protocol: Protocol) -> np.ndarray:
-        rte, rre = records["rte_m"].astype(float), records["rre_deg"].astype(float)
-        kept = ((rre < protocol.filter_rre_deg) & (rte < protocol.filter_rte_m)).to_numpy()
-        return np.where(kept, records[column].to_numpy(dtype=float), np.nan)
+        inside = kept(records["rte_m"], records["rre_deg"], protocol).to_numpy()
+        return np.where(inside, records[column].to_numpy(dtype=float), np.nan)
 
     return values
 
