@@ -11,10 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from i2pbench_deepi2p.official import solvers
 from i2pbench_deepi2p.official.network import DeepI2PNetwork
 from i2pbench_deepi2p.official.reference import reference_forward
 from i2pbench_deepi2p.official.weights import to_network
 from i2pbench_edgeregnet.reference import recipe_value
+from scipy.spatial.transform import Rotation
 
 from i2pbench.api import WeightsError
 
@@ -102,3 +104,45 @@ def test_reference_importer_refuses_a_misfitting_key(network):
     state["module.node_b_pn.layers.0.conv.weight"] = torch.zeros(3, 3, 1)
     with pytest.raises(WeightsError, match=r"node_b_pn\.layers\.0\.conv\.weight: shape \(3, 3, 1\)"):
         to_network(state, network.state_dict(), "a.t7")
+
+
+@pytest.fixture(scope="module")
+def solved():
+    """the set's solver record (tools/reference/deepi2p_solvers.py) and the problem it was made on."""
+    if not (FOLDER / "solvers.npz").is_file():
+        pytest.skip(f"no solvers.npz in {FOLDER} (tools/reference/deepi2p_solvers.py makes it)")
+    inputs = dict(np.load(FOLDER / "inputs.npz"))
+    problem = (inputs["pc"].astype(np.float64), inputs["K"].astype(np.float64), tuple(inputs["img"].shape[1:]))
+    return dict(np.load(FOLDER / "solvers.npz")), problem
+
+
+def test_reference_pnp_reaches_the_authors_pose(solved):
+    record, (pc, K, hw) = solved
+    pose, ratio = solvers.solve_pnp(pc, record["coarse_predictions"], record["fine_predictions"], K, hw)
+    np.testing.assert_allclose(pose, record["pnp_pose"], atol=1e-6)
+    assert ratio == pytest.approx(float(record["pnp_outlier_ratio"]))
+
+
+def test_reference_frustum_cost_and_initial_guess_are_the_authors(solved):
+    """their yaw guess, and our cost at each pose their Ceres solver reached equals the cost it reported (the
+    optimiser differs: docs/methods.md)."""
+    record, (pc, K, hw) = solved
+    coarse = record["coarse_predictions"]
+    yaw, front = solvers.initial_guess(pc, coarse)
+    assert yaw == pytest.approx(float(record["initial_yaw"]), abs=1e-9)
+    for variant in ("2d", "3d"):
+        pose = record[f"frustum{variant}_pose"]
+        angle_axis = Rotation.from_matrix(pose[:3, :3]).as_rotvec()
+        params = np.r_[angle_axis[1], pose[:3, 3]] if variant == "2d" else np.r_[angle_axis, pose[:3, 3]]
+        residuals = solvers.robust_residuals(params, pc[:, front], coarse[front], K, hw)
+        assert 0.5 * (residuals**2).sum() == pytest.approx(float(record[f"frustum{variant}_cost"]), rel=1e-6)
+
+
+def test_reference_frustum_cost_refuses_an_altered_pose(solved):
+    record, (pc, K, hw) = solved
+    coarse = record["coarse_predictions"]
+    _, front = solvers.initial_guess(pc, coarse)
+    pose = record["frustum2d_pose"]
+    params = np.r_[Rotation.from_matrix(pose[:3, :3]).as_rotvec()[1] + 0.05, pose[:3, 3]]
+    residuals = solvers.robust_residuals(params, pc[:, front], coarse[front], K, hw)
+    assert 0.5 * (residuals**2).sum() != pytest.approx(float(record["frustum2d_cost"]), rel=1e-6)
