@@ -4,6 +4,7 @@ the set's seeded weights imported as the authors' checkpoint would be, every rec
 its largest value, integer outputs exactly, and so do the authors' training losses. Nothing here assumes the
 particular set; a set whose tensors were altered fails."""
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -14,7 +15,7 @@ import torch
 from i2pbench_deepi2p.official import solvers
 from i2pbench_deepi2p.official.network import DeepI2PNetwork
 from i2pbench_deepi2p.official.reference import reference_forward
-from i2pbench_deepi2p.official.weights import to_network
+from i2pbench_deepi2p.official.weights import import_official, to_network
 from i2pbench_edgeregnet.reference import recipe_value
 from scipy.spatial.transform import Rotation
 
@@ -62,7 +63,7 @@ def ours(network):
 
 
 def test_reference_weights_match_the_sets_sha256():
-    digest = __import__("hashlib").sha256()
+    digest = hashlib.sha256()
     for value in authors_state(FOLDER).values():
         digest.update(value.numpy().astype(value.numpy().dtype.newbyteorder("<")).tobytes())
     assert digest.hexdigest() == (FOLDER / "weights.sha256").read_text().split()[0]
@@ -146,3 +147,21 @@ def test_reference_frustum_cost_refuses_an_altered_pose(solved):
     params = np.r_[Rotation.from_matrix(pose[:3, :3]).as_rotvec()[1] + 0.05, pose[:3, 3]]
     residuals = solvers.robust_residuals(params, pc[:, front], coarse[front], K, hw)
     assert 0.5 * (residuals**2).sum() != pytest.approx(float(record["frustum2d_cost"]), rel=1e-6)
+
+
+def test_reference_import_round_trips_an_authors_file(tmp_path):
+    """a DataParallel-saved file in the authors' layout (with the ResNet's fc) loads, every tensor in place, and the
+    record names its sha256 and release; an Oxford-sized file (240 cells) is refused for KITTI's input by key."""
+    state = authors_state(FOLDER)
+    path = tmp_path / "kitti.pth"
+    torch.save(state, path)
+    network, record = import_official(path)
+    ours = network.state_dict()
+    assert all(torch.equal(ours[k.removeprefix("module.")], v) for k, v in state.items() if ".fc." not in k)
+    assert record["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
+    assert record["trained_on"].startswith("KITTI")
+    oxford = {"module." + k: v for k, v in DeepI2PNetwork((384, 640)).state_dict().items()}
+    torch.save(oxford, tmp_path / "oxford.pth")
+    assert import_official(tmp_path / "oxford.pth", (384, 640))[1]["trained_on"].startswith("Oxford")
+    with pytest.raises(WeightsError, match=r"per_point_pn\.layers\.2\.conv\.weight: shape \(242, 256, 1\)"):
+        import_official(tmp_path / "oxford.pth")
