@@ -58,8 +58,7 @@ def network():
 
 @pytest.fixture(scope="module")
 def ours(network):
-    with torch.device("cpu"):
-        return reference_forward(network, dict(np.load(FOLDER / "inputs.npz")))
+    return reference_forward(network, dict(np.load(FOLDER / "inputs.npz")))
 
 
 def test_reference_weights_match_the_sets_sha256():

@@ -11,7 +11,13 @@ solvers have a pose to find. Then:
   draws the starts with `random` inside 8 processes; here they are drawn once (numpy, seeded) and recorded, so
   another solver can be run from the same starts.
 `FrustumRegistration` is their frustum_reg/src/registration.cpp compiled here (Ceres 2.1, pybind11 2.13; their
-bundled pybind11 2.3 does not build for Python 3.11): pass its folder with --frustum-module.
+bundled pybind11 2.3 does not build for Python 3.11): pass its folder with --frustum-module. Built here with
+
+    apt-get install libceres-dev && pip install --target /tmp/pb11 pybind11
+    g++ -O2 -shared -fPIC -std=c++17 DeepI2P/evaluation/frustum_reg/src/registration.cpp -I/tmp/pb11/pybind11/include \
+        -I/usr/include/eigen3 $(python3-config --includes) -lceres -lglog \
+        -o DIR/FrustumRegistration$(python3-config --extension-suffix)
+
 Writes SET_DIR/solvers.npz.
 """
 
