@@ -35,6 +35,7 @@ SMALL_CONFS = {
     # DeepI2P's the same way: a 64 x 32 crop (2 fine cells of 32 px), 16 nodes (its kNN fusion reads 16 a-nodes)
     ("extractor2d", "deepi2p-official-grid"): {"crop": (64, 32), "top_rows": 0},
     ("matcher", "deepi2p-official"): {"crop": (64, 32), "top_rows": 0, "nodes": 16, "normals_points": 1024},
+    ("solver", "deepi2p-official-frustum"): {"crop": (64, 32), "top_rows": 0, "restarts": 2},
 }
 
 COMPONENTS = sorted((kind, name) for kind, table in default_registry().components.items() for name in table)

@@ -130,6 +130,7 @@ OFFICIAL_TINY = {
     "deepi2p-official-points": {"max_keypoints": 1024},
     "deepi2p-official": {"crop": (64, 32), "top_rows": 0, "nodes": 16, "normals_points": 1024},
     "deepi2p-official-pnp": {},
+    "deepi2p-official-frustum": {"crop": (64, 32), "top_rows": 0, "restarts": 2},
 }
 REGISTERED = registered_components(deepi2p_plugin)
 COMPONENTS = [c for c in REGISTERED if c.name not in OFFICIAL_TINY]
@@ -156,7 +157,7 @@ def test_the_plugin_registers_the_method_s_components_and_the_frustum_solver():
     official = sorted((c.kind, c.name) for c in REGISTERED if c.name in OFFICIAL_TINY)
     assert official == sorted(
         [("extractor2d", "deepi2p-official-grid"), ("extractor3d", "deepi2p-official-points"),
-         ("matcher", "deepi2p-official"), ("solver", "deepi2p-official-pnp")]
+         ("matcher", "deepi2p-official"), ("solver", "deepi2p-official-pnp"), ("solver", "deepi2p-official-frustum")]
     )  # fmt: skip
 
 

@@ -49,6 +49,7 @@ def register_matchers(register: Register) -> None:
 def register_pose_solvers(register: Register) -> None:
     register("i2pbench_deepi2p.solver:FrustumSolver", name="deepi2p-frustum")
     register("i2pbench_deepi2p.official.stages:OfficialPnP", name="deepi2p-official-pnp")
+    register("i2pbench_deepi2p.official.stages:OfficialFrustum", name="deepi2p-official-frustum")
 
 
 @hookimpl

@@ -1,6 +1,6 @@
 """The official size's stages: the authors' pixels and points (their KITTI loader's preparation), their network as one
-matcher stage with their inference rule (coarse and fine argmax), and their grid-classification + PnP solver
-(evaluation/registration_pnp.py).
+matcher stage with their inference rule (coarse and fine argmax), their grid-classification + PnP solver
+(evaluation/registration_pnp.py), and by name their frustum registration (evaluation/registration_lsq.py).
 
 Why one learned stage: the authors' network attends from point nodes over whole image maps (strides 16 and 32), not
 per-keypoint descriptors, so it has no cut at i2pbench's encoder/exchanger boundaries; the official size runs no
@@ -55,7 +55,15 @@ from i2pbench.api import (
 from i2pbench.layers.pointnet2 import frame_seed
 
 from .network import DeepI2PNetwork
-from .solvers import PNP_ITERATIONS, PNP_MAX_TRANSLATION, PNP_THRESHOLD
+from .solvers import (
+    PNP_ITERATIONS,
+    PNP_MAX_TRANSLATION,
+    PNP_THRESHOLD,
+    RESTARTS,
+    initial_guess,
+    restarts,
+    solve_frustum,
+)
 
 CELL_PX = 32  # kitti/options.py img_fine_resolution_scale: the fine cells, in pixels of the crop
 NUM_POINTS, NODES = 20480, 128  # options.py input_pt_num, node_a_num = node_b_num
@@ -291,3 +299,60 @@ class OfficialPnP(PoseSolver):
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = cv2.Rodrigues(rvec)[0], tvec[:, 0]
         return PoseEstimate(T, inliers[:, 0].astype(np.int64))
+
+
+def crop_K(K: np.ndarray, width: int, height: int, crop: Mapping[str, Any]) -> np.ndarray:
+    """the frame's K moved onto the authors' crop (top rows cut, scaled, shifted by the crop offsets), as their
+    loader moves it."""
+    dx, dy = crop_offsets(width, height, crop)
+    moved = np.asarray(K, np.float64).copy()
+    moved[1, 2] -= crop["top_rows"]
+    moved[:2] *= crop["scale"]
+    moved[0, 2] -= dx
+    moved[1, 2] -= dy
+    return moved
+
+
+class OfficialFrustum(PoseSolver):
+    """registration_lsq.py's frustum registration (official/solvers.py `solve_frustum`) on the official matcher's
+    frustum scores: a point is 'inside' when its softmax probability is over 0.5 (the coarse argmax), the cloud in
+    camera axes and the crop's K and size as the authors pass them; `variant` "2d" (yaw + translation) or "3d" (6 DoF),
+    `restarts` perturbed starts (theirs: 60) drawn from a generator seeded by the frame. Inliers: the matches whose
+    point projects inside the crop under the solved pose."""
+
+    name = "deepi2p-official-frustum"
+    consumes = frozenset({KEYPOINTS3D, MATCHES, FRUSTUM_SCORES})
+    default_conf: ClassVar[dict[str, Any]] = {"variant": "2d", "restarts": RESTARTS, **CROP}
+
+    def __init__(self, conf: Mapping[str, Any] | None = None) -> None:
+        super().__init__(conf)
+        if self.conf["variant"] not in ("2d", "3d"):
+            raise ValueError(f"{self.label}: variant must be '2d' or '3d', got {self.conf['variant']!r}")
+
+    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, matches: Matches) -> PoseEstimate:
+        if matches.frustum is None:
+            return PoseEstimate.failed(f"{self.label}: the matches carry no frustum scores ({FRUSTUM_SCORES})")
+        width, height = frame.image_size
+        if crop_offsets(width, height, self.conf) is None:
+            return PoseEstimate.failed(f"{self.label}: the {width} x {height} image cannot hold the crop")
+        coarse = (np.asarray(matches.frustum) > 0.5).astype(np.int64)
+        if not coarse.any():
+            return PoseEstimate.failed(f"{self.label}: no point classified inside the frustum")
+        pc = (np.asarray(kp3d.xyz, np.float64) @ LIDAR_TO_CAMERA_AXES.T).T
+        K = crop_K(frame.K, width, height, self.conf)
+        hw = (self.conf["crop"][1], self.conf["crop"][0])
+        yaw, _ = initial_guess(pc, coarse)
+        starts = restarts(yaw, np.random.default_rng(frame_seed(frame)), int(self.conf["restarts"]))
+        pose, _ = solve_frustum(pc, coarse, K, hw, starts, is_2d=self.conf["variant"] == "2d")
+        axes = np.eye(4)
+        axes[:3, :3] = LIDAR_TO_CAMERA_AXES
+        T = pose @ axes
+        return PoseEstimate(T, np.flatnonzero(projects_inside(kp3d.xyz[matches.index3d], T, K, hw)).astype(np.int64))
+
+
+def projects_inside(xyz: np.ndarray, T: np.ndarray, K: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+    """[M x 3] points under T and K: in front (0.1 m, the authors' label) and within the H x W image -> [M] bool."""
+    camera = np.asarray(xyz, np.float64) @ T[:3, :3].T + T[:3, 3]
+    depth = np.maximum(camera[:, 2], 1e-9)
+    u, v = K[0, 0] * camera[:, 0] / depth + K[0, 2], K[1, 1] * camera[:, 1] / depth + K[1, 2]
+    return (camera[:, 2] > 0.1) & (u >= 0) & (u <= hw[1] - 1) & (v >= 0) & (v <= hw[0] - 1)
