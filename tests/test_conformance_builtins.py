@@ -34,6 +34,10 @@ SMALL_CONFS = {
     # CorrI2P's authors' crop scaled to the kit's 160 x 96 frame (their 512 x 160 needs a KITTI-size image), 16 nodes
     ("extractor2d", "corri2p-official-grid"): {"crop": (64, 32), "top_rows": 0},
     ("matcher", "corri2p-official"): {"crop": (64, 32), "top_rows": 0, "nodes": 16},
+    # DeepI2P's the same way: a 64 x 32 crop (2 fine cells of 32 px), 16 nodes (its kNN fusion reads 16 a-nodes)
+    ("extractor2d", "deepi2p-official-grid"): {"crop": (64, 32), "top_rows": 0},
+    ("matcher", "deepi2p-official"): {"crop": (64, 32), "top_rows": 0, "nodes": 16, "normals_points": 1024},
+    ("solver", "deepi2p-official-frustum"): {"crop": (64, 32), "top_rows": 0, "restarts": 2},
 }
 
 # components whose weights come from an optional extra: their conformance is checked only where it is installed

@@ -124,7 +124,16 @@ def features_of(stages, frame, kp2d, kp3d) -> Features:
 
 # --- conformance
 
-COMPONENTS = registered_components(deepi2p_plugin)
+# the official size's stages (tests/test_deepi2p_official.py): the authors' crop scaled to the kit's small frame
+OFFICIAL_TINY = {
+    "deepi2p-official-grid": {"crop": (64, 32), "top_rows": 0},
+    "deepi2p-official-points": {"max_keypoints": 1024},
+    "deepi2p-official": {"crop": (64, 32), "top_rows": 0, "nodes": 16, "normals_points": 1024},
+    "deepi2p-official-pnp": {},
+    "deepi2p-official-frustum": {"crop": (64, 32), "top_rows": 0, "restarts": 2},
+}
+REGISTERED = registered_components(deepi2p_plugin)
+COMPONENTS = [c for c in REGISTERED if c.name not in OFFICIAL_TINY]
 
 
 @pytest.mark.parametrize("cls", COMPONENTS, ids=lambda c: c.name)
@@ -135,10 +144,21 @@ def test_every_component_conforms(cls, size):
     assert not list(report), str(report)
 
 
+@pytest.mark.parametrize("cls", [c for c in REGISTERED if c.name in OFFICIAL_TINY], ids=lambda c: c.name)
+def test_every_official_component_conforms(cls):
+    report = check_component(cls, OFFICIAL_TINY[cls.name])
+    assert not list(report), str(report)
+
+
 def test_the_plugin_registers_the_method_s_components_and_the_frustum_solver():
     registered = [(c.kind, c.name) for c in COMPONENTS]
     expected = {**configs.EXTRACTORS, **configs.COMPONENTS, "solver": "deepi2p-frustum"}
     assert registered == [(k, v) for k, v in expected.items() if k != "extractor3d"]  # points: the classic `random`
+    official = sorted((c.kind, c.name) for c in REGISTERED if c.name in OFFICIAL_TINY)
+    assert official == sorted(
+        [("extractor2d", "deepi2p-official-grid"), ("extractor3d", "deepi2p-official-points"),
+         ("matcher", "deepi2p-official"), ("solver", "deepi2p-official-pnp"), ("solver", "deepi2p-official-frustum")]
+    )  # fmt: skip
 
 
 def test_parameter_counts_of_the_two_sizes():
@@ -538,13 +558,13 @@ def test_the_method_declares_its_sizes_and_presets(monkeypatch):
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "classic,deepi2p")
     registry = build_registry(strict=True)
     method = registry.method("deepi2p")
-    assert [s.name for s in method.sizes] == ["paper", "cpu-size"]
+    assert [s.name for s in method.sizes] == ["paper", "cpu-size", "official"]
     assert [w.name for w in method.weights] == ["deepi2p-cpu-synthetic.pt"]  # the shipped CPU-size checkpoint
     cpu, paper = (expand(base_combinations(registry, p), {}, None, registry)[0] for p in ("deepi2p", "deepi2p-paper"))
     auto = [job.weights for job in prepare(registry, [cpu, paper])]
     assert auto[0].startswith("deepi2p-cpu-synthetic@") and auto[1] == "untrained"  # --weights auto, by size
     owned = {name for name, preset in registry.presets.items() if preset.method == "deepi2p"}
-    assert owned == {"deepi2p", "deepi2p-paper", "deepi2p-frustum-2d", "deepi2p-frustum-3d"}
+    assert owned == {"deepi2p", "deepi2p-paper", "deepi2p-official", "deepi2p-frustum-2d", "deepi2p-frustum-3d"}
     (pnp,) = registry.presets["deepi2p"].combinations
     assert pnp["variant"] == "cpu-size" and pnp["solver"] == "epnp-ransac" and pnp["encoder2d"] == "deepi2p-resnet"
     assert pnp["confs"]["solver"] == {"reprojection_error_px": 0.6 * 64}  # the paper code's 0.6 cell

@@ -1,5 +1,6 @@
 """Entry point of the deepi2p plugin: DeepI2P's cell-centres extractor, encoders, fusion, per-point classifier and
-frustum solver, and the method that binds them to the classic `random` points and EPnP in RANSAC (method.py).
+frustum solver, the official size's stages (the authors' network, pixels, points and PnP: official/stages.py), and
+the method that binds them to the classic `random` points and EPnP in RANSAC (method.py).
 
 Everything is registered by import path: the learned stages' modules import torch, which `i2pbench plugins` and
 runs of other stages never need.
@@ -15,6 +16,12 @@ from .method import deepi2p
 @hookimpl
 def register_extractors_2d(register: Register) -> None:
     register("i2pbench_deepi2p.extract:CellCentresExtractor", name="deepi2p-cell-centres")
+    register("i2pbench_deepi2p.official.stages:OfficialCells", name="deepi2p-official-grid")
+
+
+@hookimpl
+def register_extractors_3d(register: Register) -> None:
+    register("i2pbench_deepi2p.official.stages:OfficialPoints", name="deepi2p-official-points")
 
 
 @hookimpl
@@ -35,11 +42,14 @@ def register_exchangers(register: Register) -> None:
 @hookimpl
 def register_matchers(register: Register) -> None:
     register("i2pbench_deepi2p.classifier:DeepI2PClassifier", name="deepi2p-classifier")
+    register("i2pbench_deepi2p.official.stages:OfficialDeepI2P", name="deepi2p-official")
 
 
 @hookimpl
 def register_pose_solvers(register: Register) -> None:
     register("i2pbench_deepi2p.solver:FrustumSolver", name="deepi2p-frustum")
+    register("i2pbench_deepi2p.official.stages:OfficialPnP", name="deepi2p-official-pnp")
+    register("i2pbench_deepi2p.official.stages:OfficialFrustum", name="deepi2p-official-frustum")
 
 
 @hookimpl

@@ -12,13 +12,14 @@ from __future__ import annotations
 from i2pbench.api import hookimpl
 
 # Table I's rows: DeepI2P's grid classification + PnP, its frustum classification + inverse projection in 3D and 2D,
-# CorrI2P, then EdgeRegNet ("Ours"); every method at the size whose weights are trained here, and beside CorrI2P's
-# CPU look-alike its authors' own network (`official`: untrained here unless given imported weights, as its row's
-# weights column says)
+# CorrI2P, then EdgeRegNet ("Ours"); every method at the size whose weights are trained here, and beside DeepI2P's
+# and CorrI2P's CPU look-alikes their authors' own networks (`official`: untrained here unless given imported
+# weights, as their rows' weights column says)
 TABLE_1 = (
     "deepi2p",
     "deepi2p-frustum-3d",
     "deepi2p-frustum-2d",
+    "deepi2p-official",
     "corri2p",
     "corri2p-official",
     "default",
@@ -34,7 +35,7 @@ def register_presets(register) -> None:
         "paper-table-1",
         list(TABLE_1),
         "the seed paper's Table I: DeepI2P (grid + PnP, frustum 3D, frustum 2D), CorrI2P, EdgeRegNet, the oracle "
-        "ceiling; each method's trainable size",
+        "ceiling; each method's trainable size, and DeepI2P's and CorrI2P's authors' networks (untrained here)",
     )
     register(
         "paper-table-1-paper-size",

@@ -1,0 +1,358 @@
+"""The official size's stages: the authors' pixels and points (their KITTI loader's preparation), their network as one
+matcher stage with their inference rule (coarse and fine argmax), their grid-classification + PnP solver
+(evaluation/registration_pnp.py), and by name their frustum registration (evaluation/registration_lsq.py).
+
+Why one learned stage: the authors' network attends from point nodes over whole image maps (strides 16 and 32), not
+per-keypoint descriptors, so it has no cut at i2pbench's encoder/exchanger boundaries; the official size runs no
+encoder or exchanger, and the matcher holds the network (network.py) under `net.`, its keys the authors'.
+
+Pixels (`deepi2p-official-grid`): the authors' image is the frame's, top 50 rows cut, halved (OpenCV linear) and
+centre-cropped to 160 x 512 (kitti/options.py, data/kitti_pc_img_pose_loader.py); the network classifies each point
+into one of its 32 px cells, which their PnP reads as the cell's integer (column, row) with K at 1/32 of the crop's.
+That is full-resolution pixel (64 c + 2 dx, 64 r + 2 dy + 50) under the frame's K (dx, dy: the crop's offsets in the
+half-size image), exactly: so EPnP on these pixels with the frame's K and 38.4 px is theirs on cells with K/32 and
+0.6. The crop is a conf of the grid and of the matcher, their defaults the authors'; a frame too small for it gets no
+pixel (the conformance kit scales it to its frame).
+
+Points (`deepi2p-official-points`): the scan voxelised at 0.1 m with open3d normals (radius 0.6 m, 30 neighbours,
+oriented to +z) and the intensity of the nearest return, voxelised again at 0.3 m when it holds over twice the 20,480
+points (normals and intensity averaged, as the loader's colour trick), then a seeded random 20,480. Kept differences:
+the loader's accumulation of 3 scans by odometry poses is not done (a benchmark frame is one scan); a cloud of fewer
+points is taken whole rather than drawn with repeats; each point's `index` is its nearest return's row; the network
+sees the cloud in camera axes (x right, y down, z forward: a fixed permutation of the LiDAR's), in which the
+protocol's yaw is the rotation about y that the authors train under.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import cv2
+import numpy as np
+import torch
+
+from i2pbench.api import (
+    FRUSTUM_SCORES,
+    KEYPOINTS2D,
+    KEYPOINTS3D,
+    MATCHES,
+    BatchedStage,
+    Device,
+    Extractor2D,
+    Extractor3D,
+    Features,
+    Frame,
+    Keypoints2D,
+    Keypoints3D,
+    Matcher,
+    Matches,
+    PoseEstimate,
+    PoseSolver,
+    StageError,
+)
+from i2pbench.layers.pointnet2 import frame_seed
+
+from .network import DeepI2PNetwork
+from .solvers import (
+    PNP_ITERATIONS,
+    PNP_MAX_TRANSLATION,
+    PNP_THRESHOLD,
+    RESTARTS,
+    initial_guess,
+    restarts,
+    solve_frustum,
+)
+
+CELL_PX = 32  # kitti/options.py img_fine_resolution_scale: the fine cells, in pixels of the crop
+NUM_POINTS, NODES = 20480, 128  # options.py input_pt_num, node_a_num = node_b_num
+LIDAR_TO_CAMERA_AXES = np.array([[0, -1, 0], [0, 0, -1], [1, 0, 0]], np.float32)
+# the authors' image preparation (options.py crop_original_top_rows, img_scale, img_W x img_H): a conf of the grid
+# and of the matcher, which must agree (the official size pins both to these)
+CROP: dict[str, Any] = {"top_rows": 50, "scale": 0.5, "crop": (512, 160)}
+
+
+def crop_offsets(width: int, height: int, crop: Mapping[str, Any]) -> tuple[int, int] | None:
+    """(dx, dy) of the centre crop in the scaled image (rows below `top_rows`), as the loader's val modes; None for
+    a frame too small to hold it."""
+    scaled_w = round(width * crop["scale"])
+    scaled_h = round((height - crop["top_rows"]) * crop["scale"])
+    crop_w, crop_h = crop["crop"]
+    if scaled_w < crop_w or scaled_h < crop_h:
+        return None
+    return (scaled_w - crop_w) // 2, (scaled_h - crop_h) // 2
+
+
+def network_image(image: np.ndarray, crop: Mapping[str, Any]) -> np.ndarray:
+    """the frame's RGB image -> the authors' crop (H x W x 3 uint8); the frame must hold it (crop_offsets)."""
+    cut = image[crop["top_rows"] :]
+    size = (round(cut.shape[1] * crop["scale"]), round(cut.shape[0] * crop["scale"]))
+    scaled = cv2.resize(cut, size, interpolation=cv2.INTER_LINEAR)
+    dx, dy = crop_offsets(image.shape[1], image.shape[0], crop)
+    crop_w, crop_h = crop["crop"]
+    return np.ascontiguousarray(scaled[dy : dy + crop_h, dx : dx + crop_w])
+
+
+def cell_pixels(width: int, height: int, crop: Mapping[str, Any] = CROP) -> np.ndarray:
+    """the full-resolution pixel of each fine cell's corner (what the authors' PnP reads), raster order ->
+    [cells x 2]; none for a frame too small to hold the crop."""
+    offsets = crop_offsets(width, height, crop)
+    if offsets is None:
+        return np.zeros((0, 2), np.float32)
+    (dx, dy), (crop_w, crop_h) = offsets, crop["crop"]
+    rows, cols = np.divmod(np.arange((crop_h // CELL_PX) * (crop_w // CELL_PX)), crop_w // CELL_PX)
+    step, scale = CELL_PX / crop["scale"], 1 / crop["scale"]
+    return np.stack([step * cols + scale * dx, step * rows + scale * dy + crop["top_rows"]], 1).astype(np.float32)
+
+
+def pixel_cells(uv: np.ndarray, width: int, height: int, crop: Mapping[str, Any] = CROP) -> np.ndarray:
+    """the fine cell each pixel uv [M x 2] falls in (the inverse of cell_pixels, whose pixels are their cells'
+    corners), raster order -> [M] int64; -1 outside the crop."""
+    offsets = crop_offsets(width, height, crop)
+    if offsets is None:
+        return np.full(len(uv), -1, np.int64)
+    (dx, dy), (crop_w, crop_h) = offsets, crop["crop"]
+    step = CELL_PX / crop["scale"]
+    col = np.floor((uv[:, 0] - dx / crop["scale"]) / step).astype(np.int64)
+    row = np.floor((uv[:, 1] - crop["top_rows"] - dy / crop["scale"]) / step).astype(np.int64)
+    inside = (col >= 0) & (col < crop_w // CELL_PX) & (row >= 0) & (row < crop_h // CELL_PX)
+    return np.where(inside, row * (crop_w // CELL_PX) + col, -1)
+
+
+def network_cloud(frame: Frame, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """the scan as the authors' loader makes it before its random draw: points [V x 3], normals [V x 3], intensity
+    [V] and each point's nearest raw row [V] (module docstring)."""
+    import open3d as o3d
+    from scipy.spatial import cKDTree
+
+    finite = np.flatnonzero(np.isfinite(frame.points).all(1))
+    raw = frame.points[finite]
+    if len(raw) == 0:
+        empty = np.zeros((0, 3), np.float32)
+        return empty, empty, np.zeros(0, np.float32), np.zeros(0, np.int64)
+    tree = cKDTree(raw[:, :3])
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(raw[:, :3].astype(np.float64)))
+    cloud = cloud.voxel_down_sample(voxel_size=0.1)
+    cloud.estimate_normals(search_param=o3d.geometry.KDTreeSearchParamHybrid(radius=0.6, max_nn=30))
+    cloud.orient_normals_to_align_with_direction([0, 0, 1])
+    intensity = raw[tree.query(np.asarray(cloud.points), k=1)[1], 3].astype(np.float64)
+    if len(cloud.points) > 2 * count:
+        top = max(float(intensity.max()), 1e-12)
+        cloud.colors = o3d.utility.Vector3dVector(np.c_[intensity / top, np.zeros((len(intensity), 2))])
+        cloud = cloud.voxel_down_sample(voxel_size=0.3)
+        intensity = np.asarray(cloud.colors)[:, 0] * top
+    xyz = np.asarray(cloud.points, np.float32)
+    rows = finite[tree.query(xyz, k=1)[1]]
+    return xyz, np.asarray(cloud.normals, np.float32), intensity.astype(np.float32), rows
+
+
+def farthest_nodes(points: np.ndarray, count: int, pool: int, rng: np.random.Generator) -> np.ndarray:
+    """the loader's node sampling (FarthestSampler): FPS (first index at a tie, from a random start) over a random
+    pool * count of points [N x 3] -> [count x 3]; fewer points than nodes repeat, as theirs."""
+    subset = points[rng.choice(len(points), min(pool * count, len(points)), replace=False)].astype(np.float64)
+    chosen = [int(rng.integers(len(subset)))]
+    dist = ((subset - subset[chosen[0]]) ** 2).sum(1)
+    for _ in range(1, count):
+        chosen.append(int(np.argmax(dist)))
+        dist = np.minimum(dist, ((subset - subset[chosen[-1]]) ** 2).sum(1))
+    return subset[chosen].astype(np.float32)
+
+
+class OfficialCells(Extractor2D):
+    """Every fine cell of the authors' crop, as the frame's pixel their PnP puts it at (module docstring)."""
+
+    name = "deepi2p-official-grid"
+    default_conf: ClassVar[dict[str, Any]] = dict(CROP)
+
+    def __call__(self, frame: Frame) -> Keypoints2D:
+        width, height = frame.image_size
+        return Keypoints2D(uv=cell_pixels(width, height, self.conf))
+
+
+class OfficialPoints(Extractor3D):
+    """A seeded 20,480 of the scan as the authors' loader prepares it (module docstring)."""
+
+    name = "deepi2p-official-points"
+    default_conf: ClassVar[dict[str, Any]] = {"max_keypoints": NUM_POINTS, "seed": 0}
+
+    def __call__(self, frame: Frame) -> Keypoints3D:
+        count = int(self.conf["max_keypoints"])
+        xyz, _, intensity, rows = network_cloud(frame, count)
+        rng = np.random.default_rng([frame_seed(frame), int(self.conf["seed"])])
+        pick = np.sort(rng.choice(len(xyz), count, replace=False)) if len(xyz) > count else np.arange(len(xyz))
+        return Keypoints3D(index=rows[pick].astype(np.int64), xyz=xyz[pick], reflectance=intensity[pick])
+
+
+class OfficialDeepI2P(BatchedStage, Matcher):
+    """The authors' network and inference: a point whose coarse argmax is 'inside' is paired with the pixel of its
+    fine argmax cell; every point's softmax 'inside' probability is its frustum score (the frustum solvers' input).
+
+    A pair is true when its point projects within one cell diagonal of the cell's corner pixel (64 px cells at full
+    size: 90.5 px), which holds the whole cell the classifier names."""
+
+    name = "deepi2p-official"
+    consumes = frozenset({KEYPOINTS2D, KEYPOINTS3D})
+    provides = frozenset({MATCHES, FRUSTUM_SCORES})
+    default_conf: ClassVar[dict[str, Any]] = {
+        "nodes": NODES,  # node_a and node_b each (options.py)
+        "node_pool": 8,  # FPS over a random 8 x nodes points (kitti_pc_img_pose_loader.py)
+        "normals_points": NUM_POINTS,  # the cloud size whose preparation gives each point its normal
+        **CROP,
+    }
+
+    def __init__(self, conf: Mapping[str, Any] | None = None) -> None:
+        super().__init__(conf)
+        crop_w, crop_h = self.conf["crop"]
+        self.net = DeepI2PNetwork((crop_h, crop_w), CELL_PX)
+
+    def prepare(
+        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, device: Device = "cpu", cache: dict | None = None
+    ) -> dict[str, torch.Tensor]:
+        """the network's inputs: image [3 x 160 x 512] (0-255), cloud and normals [3 x N] in camera axes, intensity
+        [1 x N], nodes [3 x 128] each."""
+        from scipy.spatial import cKDTree
+
+        cloud, normals, _, _ = network_cloud(frame, int(self.conf["normals_points"]))
+        xyz = np.asarray(kp3d.xyz, np.float32)
+        _, row = cKDTree(cloud).query(xyz, k=1)
+        pc = xyz @ LIDAR_TO_CAMERA_AXES.T
+        rng = np.random.default_rng(frame_seed(frame))
+        nodes = [farthest_nodes(pc, int(self.conf["nodes"]), int(self.conf["node_pool"]), rng) for _ in range(2)]
+        image = torch.from_numpy(network_image(frame.image, self.conf).astype(np.float32)).permute(2, 0, 1)
+        sn = normals[row] @ LIDAR_TO_CAMERA_AXES.T
+        inputs = {
+            "image": image, "pc": torch.from_numpy(pc.T.copy()), "sn": torch.from_numpy(sn.T.copy()),
+            "intensity": torch.from_numpy(np.asarray(kp3d.reflectance, np.float32))[None],
+            "node_a": torch.from_numpy(nodes[0].T.copy()), "node_b": torch.from_numpy(nodes[1].T.copy()),
+        }  # fmt: skip
+        return {k: v.contiguous().to(device) for k, v in inputs.items()}
+
+    def forward(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """`prepare`d frames -> coarse [B x 2 x N] and fine [B x cells x N] scores (network.py)."""
+        return self.net(inputs["pc"], inputs["intensity"], inputs["sn"], inputs["node_a"], inputs["node_b"],
+                        inputs["image"])  # fmt: skip
+
+    @torch.no_grad()
+    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Matches:
+        if len(kp3d) == 0:  # an empty scan: nothing to classify
+            return dataclasses.replace(Matches.empty(), frustum=np.zeros(0, np.float32))
+        width, height = frame.image_size
+        if crop_offsets(width, height, self.conf) is None:
+            raise StageError(self.label, f"the {width} x {height} image cannot hold the authors' crop {self.conf}")
+        cells = pixel_cells(np.asarray(kp2d.uv, np.float32).reshape(-1, 2), width, height, self.conf)
+        out = self.batched(self.one(frame, kp2d, kp3d))
+        return classified_matches(out["coarse_scores"][0], out["fine_scores"][0], cells, self.cell_diagonal_px())
+
+    def cell_diagonal_px(self) -> float:
+        return float(np.hypot(CELL_PX, CELL_PX) / self.conf["scale"])
+
+
+def classified_matches(coarse: torch.Tensor, fine: torch.Tensor, cells: np.ndarray, radius_px: float) -> Matches:
+    """coarse [2 x N], fine [C x N] scores and the cell of each 2D keypoint [M] (-1: none) -> each point classified
+    inside paired with the first keypoint in its predicted cell (score: that cell's softmax probability); frustum:
+    every point's softmax probability of 'inside'."""
+    frustum = torch.softmax(coarse.float(), dim=0)[1].cpu().numpy().astype(np.float32)
+    fine_prob, fine_cell = torch.softmax(fine.float(), dim=0).max(dim=0)
+    keypoint_of = np.full(fine.shape[0], -1, np.int64)
+    for row in range(len(cells) - 1, -1, -1):  # backwards, so the first keypoint of a cell is the one kept
+        if cells[row] >= 0:
+            keypoint_of[cells[row]] = row
+    inside = (coarse.argmax(dim=0) == 1).cpu().numpy()
+    pixel = keypoint_of[fine_cell.cpu().numpy()]
+    points = np.flatnonzero(inside & (pixel >= 0))
+    return Matches(
+        pixel[points], points.astype(np.int64), fine_prob.cpu().numpy()[points].astype(np.float32), frustum,
+        radius_px=radius_px,
+    )  # fmt: skip
+
+
+class OfficialPnP(PoseSolver):
+    """registration_pnp.py's solve_PnP on the official grid's pixels: EPnP in RANSAC, 500 iterations, 0.6 cell
+    (38.4 px at full size), from no initial guess; a pose whose translation is 14.14 m or longer is refused (the
+    authors replace it with the identity, a pose; here it is a failed solve, which the metrics count as such)."""
+
+    name = "deepi2p-official-pnp"
+    default_conf: ClassVar[dict[str, Any]] = {
+        "iterations": PNP_ITERATIONS,
+        "reprojection_error_px": PNP_THRESHOLD * CELL_PX / CROP["scale"],
+        "max_translation_m": PNP_MAX_TRANSLATION,
+    }
+
+    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, matches: Matches) -> PoseEstimate:
+        if len(matches) < 4:
+            return PoseEstimate.failed(f"{self.label}: {len(matches)} points classified inside, EPnP needs 4")
+        points = np.asarray(kp3d.xyz, np.float64)[matches.index3d]
+        pixels = np.asarray(kp2d.uv, np.float64)[matches.index2d]
+        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+            points, pixels, np.asarray(frame.K, np.float64), None, useExtrinsicGuess=False,
+            iterationsCount=int(self.conf["iterations"]),
+            reprojectionError=float(self.conf["reprojection_error_px"]), flags=cv2.SOLVEPNP_EPNP,
+        )  # fmt: skip
+        if not ok or inliers is None:
+            return PoseEstimate.failed(f"{self.label}: EPnP-RANSAC found no pose")
+        if np.linalg.norm(tvec) >= float(self.conf["max_translation_m"]):
+            return PoseEstimate.failed(
+                f"{self.label}: translation {np.linalg.norm(tvec):.2f} m >= {self.conf['max_translation_m']} m, "
+                "refused as the authors' solve_PnP does"
+            )
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = cv2.Rodrigues(rvec)[0], tvec[:, 0]
+        return PoseEstimate(T, inliers[:, 0].astype(np.int64))
+
+
+def crop_K(K: np.ndarray, width: int, height: int, crop: Mapping[str, Any]) -> np.ndarray:
+    """the frame's K moved onto the authors' crop (top rows cut, scaled, shifted by the crop offsets), as their
+    loader moves it."""
+    dx, dy = crop_offsets(width, height, crop)
+    moved = np.asarray(K, np.float64).copy()
+    moved[1, 2] -= crop["top_rows"]
+    moved[:2] *= crop["scale"]
+    moved[0, 2] -= dx
+    moved[1, 2] -= dy
+    return moved
+
+
+class OfficialFrustum(PoseSolver):
+    """registration_lsq.py's frustum registration (official/solvers.py `solve_frustum`) on the official matcher's
+    frustum scores: a point is 'inside' when its softmax probability is over 0.5 (the coarse argmax), the cloud in
+    camera axes and the crop's K and size as the authors pass them; `variant` "2d" (yaw + translation) or "3d" (6 DoF),
+    `restarts` perturbed starts (theirs: 60) drawn from a generator seeded by the frame. Inliers: the matches whose
+    point projects inside the crop under the solved pose."""
+
+    name = "deepi2p-official-frustum"
+    consumes = frozenset({KEYPOINTS3D, MATCHES, FRUSTUM_SCORES})
+    default_conf: ClassVar[dict[str, Any]] = {"variant": "2d", "restarts": RESTARTS, **CROP}
+
+    def __init__(self, conf: Mapping[str, Any] | None = None) -> None:
+        super().__init__(conf)
+        if self.conf["variant"] not in ("2d", "3d"):
+            raise ValueError(f"{self.label}: variant must be '2d' or '3d', got {self.conf['variant']!r}")
+
+    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, matches: Matches) -> PoseEstimate:
+        if matches.frustum is None:
+            return PoseEstimate.failed(f"{self.label}: the matches carry no frustum scores ({FRUSTUM_SCORES})")
+        width, height = frame.image_size
+        if crop_offsets(width, height, self.conf) is None:
+            return PoseEstimate.failed(f"{self.label}: the {width} x {height} image cannot hold the crop")
+        coarse = (np.asarray(matches.frustum) > 0.5).astype(np.int64)
+        if not coarse.any():
+            return PoseEstimate.failed(f"{self.label}: no point classified inside the frustum")
+        pc = (np.asarray(kp3d.xyz, np.float64) @ LIDAR_TO_CAMERA_AXES.T).T
+        K = crop_K(frame.K, width, height, self.conf)
+        hw = (self.conf["crop"][1], self.conf["crop"][0])
+        yaw, _ = initial_guess(pc, coarse)
+        starts = restarts(yaw, np.random.default_rng(frame_seed(frame)), int(self.conf["restarts"]))
+        pose, _ = solve_frustum(pc, coarse, K, hw, starts, is_2d=self.conf["variant"] == "2d")
+        axes = np.eye(4)
+        axes[:3, :3] = LIDAR_TO_CAMERA_AXES
+        T = pose @ axes
+        return PoseEstimate(T, np.flatnonzero(projects_inside(kp3d.xyz[matches.index3d], T, K, hw)).astype(np.int64))
+
+
+def projects_inside(xyz: np.ndarray, T: np.ndarray, K: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+    """[M x 3] points under T and K: in front (0.1 m, the authors' label) and within the H x W image -> [M] bool."""
+    camera = np.asarray(xyz, np.float64) @ T[:3, :3].T + T[:3, 3]
+    depth = np.maximum(camera[:, 2], 1e-9)
+    u, v = K[0, 0] * camera[:, 0] / depth + K[0, 2], K[1, 1] * camera[:, 1] / depth + K[1, 2]
+    return (camera[:, 2] > 0.1) & (u >= 0) & (u <= hw[1] - 1) & (v >= 0) & (v <= hw[0] - 1)

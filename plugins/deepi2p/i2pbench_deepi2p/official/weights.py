@@ -1,0 +1,72 @@
+"""Import of the authors' checkpoint (lijx10/DeepI2P: `torch.save` of KeypointDetector's state dict, with `module.`
+prefixes when saved from DataParallel) onto the official network.
+
+Our module names are the authors' (the checkpoint layout is the interface), so the mapping only strips `module.`
+and drops the ResNet's ImageNet `fc.*`, which the network never reads. Any other key that does not fit, or a shape
+that differs, is refused by name.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from collections.abc import Mapping
+from pathlib import Path
+
+import torch
+
+from i2pbench.api import WeightsError
+
+from .network import DeepI2PNetwork
+
+UNUSED = re.compile(r"img_encoder\.backbone\.fc\.(weight|bias)")
+
+
+def to_network(
+    state: Mapping[str, torch.Tensor], expected: Mapping[str, torch.Tensor], source: str
+) -> dict[str, torch.Tensor]:
+    """the authors' state dict -> ours (prefixes stripped, `fc` dropped), refused with the misfitting keys named."""
+    ours = {}
+    for key, value in state.items():
+        name = key.removeprefix("module.")
+        if not UNUSED.fullmatch(name):
+            ours[name] = value
+    problems = [f"unexpected key {k}" for k in ours if k not in expected]
+    problems += [f"missing key {k}" for k in expected if k not in ours]
+    problems += [
+        f"key {k}: shape {tuple(v.shape)}, expected {tuple(expected[k].shape)}"
+        for k, v in ours.items()
+        if k in expected and v.shape != expected[k].shape
+    ]
+    if problems:
+        shown = "; ".join(problems[:12]) + (f"; and {len(problems) - 12} more" if len(problems) > 12 else "")
+        raise WeightsError(f"{source} is not the authors' DeepI2P KeypointDetector state dict: {shown}")
+    return ours
+
+
+RELEASES = {  # image size -> what the authors' checkpoints at that size were trained on (README.md, issue #2)
+    (160, 512): "KITTI odometry 00-08 (the authors' KITTI weights are lost: lijx10/DeepI2P issue #2)",
+    (384, 640): "Oxford RobotCar (the authors' released coarse + fine classification model, README.md)",
+}
+
+
+def read_state(path: Path) -> dict[str, torch.Tensor]:
+    """a state dict of tensors from a torch file (`weights_only`), unwrapped from a {'state_dict': ...}."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise WeightsError(f"{path} is not a readable torch file: {exc}") from exc
+    if isinstance(state, Mapping) and isinstance(state.get("state_dict"), Mapping):
+        state = state["state_dict"]
+    if not isinstance(state, Mapping) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise WeightsError(f"{path} holds no state dict of tensors")
+    return dict(state)
+
+
+def import_official(path: Path, image_hw: tuple[int, int] = (160, 512)) -> tuple[DeepI2PNetwork, dict[str, str]]:
+    """the authors' checkpoint loaded into the official network for their input size (KITTI 160 x 512, Oxford
+    384 x 640) -> (network, record: file, sha256, what it was trained on)."""
+    network = DeepI2PNetwork(image_hw)
+    network.load_state_dict(to_network(read_state(path), network.state_dict(), str(path)))
+    digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    return network, {"file": Path(path).name, "sha256": digest, "trained_on": RELEASES.get(tuple(image_hw), "")}
