@@ -30,7 +30,7 @@ from i2pbench_edgeregnet.reference import recipe_value
 
 from i2pbench.api import Keypoints2D, Matches, WeightsError
 from i2pbench.cli import main
-from i2pbench.plugins import default_registry
+from i2pbench.registry.build import default_registry
 from i2pbench.runs.store import ResultsStore
 from i2pbench.weights import load_checkpoint
 
