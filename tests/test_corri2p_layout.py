@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import SHARED_DATA
+from conftest import SAMPLE_DATA, sample
 
 from i2pbench.boards import leaderboard
 from i2pbench.cli import main
@@ -24,14 +24,13 @@ from i2pbench.protocol import Protocol
 from i2pbench.protocol_peer import draw_pose, seed_of
 from i2pbench.scoring.cards import COFII2P, CORRI2P
 
-KITTI = SHARED_DATA / "kitti_odometry"
+KITTI = SAMPLE_DATA / "kitti_odometry"
 
 
 @pytest.fixture(scope="module")
 def export(tmp_path_factory) -> Path:
     """The six real frames (sequences 00 and 01) exported by the command."""
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    sample("kitti_odometry")
     out = tmp_path_factory.mktemp("corri2p") / "export"
     assert main(["data", "export", "--layout", "corri2p", "--from", str(KITTI), "--out", str(out), "--quiet"]) == 0
     return out

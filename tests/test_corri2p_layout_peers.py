@@ -8,20 +8,19 @@ import os
 from pathlib import Path
 
 import pytest
-from conftest import SHARED_DATA
+from conftest import SAMPLE_DATA, sample
 from corri2p_layout_check import TOLERANCES, check
 
 from i2pbench.data.corri2p_export import export_kitti
 
-KITTI = SHARED_DATA / "kitti_odometry"
+KITTI = SAMPLE_DATA / "kitti_odometry"
 CHECKOUTS = {"corri2p": "I2PBENCH_CORRI2P_CHECKOUT", "cofii2p": "I2PBENCH_COFII2P_CHECKOUT"}
 REPOS = {"corri2p": "rsy6318/CorrI2P", "cofii2p": "WHU-USI3DV/CoFiI2P"}
 
 
 @pytest.fixture(scope="module")
 def export(tmp_path_factory) -> Path:
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    sample("kitti_odometry")
     out = tmp_path_factory.mktemp("peers") / "export"
     export_kitti(KITTI, out)
     return out

@@ -10,13 +10,14 @@ from pathlib import Path
 
 import pytest
 import torch
+from conftest import SAMPLE_DATA, needs_sample
 from test_cli_errors import ROOT
 
 from i2pbench.cli import main
 
 SHIPPED = ROOT / "plugins" / "edgeregnet" / "i2pbench_edgeregnet" / "weights" / "edgeregnet-cpu-synthetic.pt"
-SHAPES = ROOT.parent / "shared" / "data" / "edgeregnet_reference" / "state_dict_shapes.json"
-needs_shapes = pytest.mark.skipif(not SHAPES.is_file(), reason=f"no official state dict shapes at {SHAPES.parent}")
+SHAPES = SAMPLE_DATA / "edgeregnet_reference" / "state_dict_shapes.json"
+needs_shapes = needs_sample("edgeregnet_reference", "state_dict_shapes.json")
 
 
 def sha256(path: Path) -> str:
@@ -296,10 +297,8 @@ def test_train_refuses_a_validation_split_with_no_frames_before_writing_anything
     assert sorted(p.name for p in (root / "sequences").iterdir()) == ["01"]  # the train split was never made
 
 
-DATA = ROOT.parent / "shared" / "data"
-needs_drives = pytest.mark.skipif(
-    not (DATA / "kitti_drives" / "sequences" / "33").is_dir(), reason=f"no real KITTI drives under {DATA}"
-)
+DATA = SAMPLE_DATA
+needs_drives = needs_sample("kitti_drives", "sequences", "33")
 SPLIT = """name: mysplit
 scenes:
   a: [kitti_drives/33]

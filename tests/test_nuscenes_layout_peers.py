@@ -9,10 +9,10 @@ import os
 from pathlib import Path
 
 import pytest
-from conftest import SHARED_DATA
+from conftest import SAMPLE_DATA, sample
 from nuscenes_layout_check import TOLERANCES, check, check_build, export_both
 
-RECORDS = SHARED_DATA / "nuscenes_real"
+RECORDS = SAMPLE_DATA / "nuscenes_real"
 CHECKOUTS = {"corri2p": "I2PBENCH_CORRI2P_CHECKOUT", "cofii2p": "I2PBENCH_COFII2P_CHECKOUT"}
 REPOS = {"corri2p": "rsy6318/CorrI2P", "cofii2p": "WHU-USI3DV/CoFiI2P"}
 
@@ -26,8 +26,7 @@ def checkout_of(peer: str) -> Path:
 
 @pytest.fixture(scope="module")
 def scratch(tmp_path_factory) -> Path:
-    if not RECORDS.is_dir():
-        pytest.skip(f"{RECORDS} is not present")
+    sample("nuscenes_real")
     return tmp_path_factory.mktemp("nuscenes-peers")
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SHARED_DATA
+from conftest import SAMPLE_DATA, sample
 
 from i2pbench.boards import leaderboard
 from i2pbench.cli import main
@@ -24,15 +24,14 @@ from i2pbench.protocol_peer import draw_pose
 from i2pbench.scoring import installed
 from i2pbench.scoring.cards import COFII2P, CORRI2P
 
-RECORDS = SHARED_DATA / "nuscenes_real"
+RECORDS = SAMPLE_DATA / "nuscenes_real"
 FIRST_SAMPLE = "b5989651183643369174912bc5641d3b"  # scene-0916_sample00, the first keyframe in time
 LAYOUT_FILES = {"cofii2p-nuscenes": ("pc", "img", "int", "ext"), "corri2p-nuscenes": ("PC", "img", "K")}
 
 
 @pytest.fixture(scope="module")
 def dataroot(tmp_path_factory) -> Path:
-    if not RECORDS.is_dir():
-        pytest.skip(f"{RECORDS} is not present")
+    sample("nuscenes_real")
     root = tmp_path_factory.mktemp("nuscenes") / "dataroot"
     build_dataroot([RECORDS], root, "v1.0-test")
     return root
