@@ -5,10 +5,10 @@ A KITTI scan (default: ../shared/data/kitti_odometry/sequences/00/velodyne/00000
 to strides 2, 4 and 8 by SPVCNN's 2^3 strided convolutions. On each, SPVCNN's (cr 0.5) convolutions run: the 3^3
 submanifold at its channel width, and the 2^3 strided one. For each layer: its FLOPs (2 C_in C_out per neighbour
 pair), the median seconds of its phases, measured one by one in one process:
-- `map`: the kernel map (coordinate hashes, sorting, `searchsorted` of every output voxel + offset);
+- `map`: the kernel map (coordinate keys, sorting, one `searchsorted` of every output voxel + offset);
 - `gather`: the rows of each offset (`index_select`);
-- `matmul`: one `[pairs_k x C_in] @ [C_in x C_out]` per offset;
-- `scatter`: the concatenation and one `index_add` into the outputs;
+- `matmul`: one `[pairs_k x C_in] @ [C_in x C_out]` per offset (the submanifold centre: all rows, no gather);
+- `scatter`: one `scatter_add` of the concatenated products into the outputs;
 and the whole layer (map cached, as it is after the first layer of a stride) forward and forward + backward.
 `of matmul` is the layer's FLOP rate over the 2048^3 fp32 matmul rate; `of same-shape` over the rate of one dense
 `[N_out x C_in] @ [C_in x C_out]` matmul, the ceiling a narrow layer can reach on this machine.
@@ -62,25 +62,32 @@ def voxelised_scan(scan: Path, device: str) -> SparseVoxels:
 
 
 def phases(x: SparseVoxels, layer: SparseConv3d, repeat: int, device: str) -> dict[str, float]:
-    """median seconds of each phase of one layer (see the module docstring)."""
+    """median seconds of each phase of one layer, as `apply_kernel_map` runs them (see the module docstring)."""
     out_coords = x.coords if layer.stride == 1 else downsample_coords(x.coords, layer.stride, x.stride)
     kmap = build_kernel_map(x.coords, out_coords, layer.kernel_size, x.stride)
     kernel = layer.kernel.detach()
-    gathered = [x.feats.index_select(0, i) for i, _ in kmap.pairs]
-    products = [g @ kernel[k] for k, g in enumerate(gathered)]
-    targets = torch.cat([o for _, o in kmap.pairs])
+    rest = [(k, i, o) for k, (i, o) in enumerate(kmap.pairs) if k != kmap.identity and len(o)]
+    gathered = [x.feats.index_select(0, i) for _, i, _ in rest]
+    products = torch.cat([g @ kernel[k] for (k, _, _), g in zip(rest, gathered, strict=True)])
+    targets = torch.cat([o for _, _, o in rest]).unsqueeze(1).expand(-1, kernel.shape[-1])
     zeros = x.feats.new_zeros(kmap.n_out, kernel.shape[-1])
+    centre = kmap.identity
+
+    def matmuls() -> list[torch.Tensor]:
+        own = [x.feats @ kernel[centre]] if centre is not None else []
+        return own + [g @ kernel[k] for (k, _, _), g in zip(rest, gathered, strict=True)]
+
     feats = x.feats.detach().requires_grad_(True)
     timed = {
         "map": lambda: build_kernel_map(x.coords, out_coords, layer.kernel_size, x.stride),
-        "gather": lambda: [x.feats.index_select(0, i) for i, _ in kmap.pairs],
-        "matmul": lambda: [g @ kernel[k] for k, g in enumerate(gathered)],
-        "scatter": lambda: zeros.index_add(0, targets, torch.cat(products)),
+        "gather": lambda: [x.feats.index_select(0, i) for _, i, _ in rest],
+        "matmul": matmuls,
+        "scatter": lambda: zeros.scatter_add(0, targets, products),
         "forward": lambda: apply_kernel_map(x.feats, kernel, kmap),
         "forward+backward": lambda: apply_kernel_map(feats, layer.kernel, kmap).sum().backward(),
     }
     seconds = {name: median_seconds(fn, repeat, device) for name, fn in timed.items()}
-    seconds["pairs"] = float(len(targets))
+    seconds["pairs"] = float(sum(len(o) for _, o in kmap.pairs))
     seconds["n_out"] = float(kmap.n_out)
     return seconds
 

@@ -60,10 +60,10 @@ LAYER_CODE = {
     "mlp": (0, "1e8fb86b56f9"),
     "nodes": (0, "57e284127b45"),
     "pointnet2": (0, "717820735e20"),  # seeded_cloud added: outputs unchanged
-    "point_voxel": (0, "c47529b6b2b4"),
+    "point_voxel": (0, "6454dd9cb5d5"),
     "resnet": (0, "38d6e5b5dcfe"),
     "sampling": (0, "dd084e30084c"),
-    "sparse": (0, "c04cd738aef6"),
+    "sparse": (0, "862328a80b46"),
 }
 
 

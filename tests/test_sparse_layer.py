@@ -95,6 +95,7 @@ def test_two_voxels_by_hand():
     y = layer(x)
     assert y.feats.squeeze(1).tolist() == [14 * 1 + 15 * 10, 14 * 10 + 13 * 1]
     assert torch.equal(y.coords, x.coords)
+    assert x.kernel_maps[(1, 3, 1)].identity == 13  # the centre: every voxel to itself, one plain matmul
 
 
 @pytest.mark.parametrize("stride", [1, 2])
@@ -210,3 +211,16 @@ def test_voxel_to_point_is_trilinear_and_renormalises_missing_corners():
     two = SparseVoxels(feats[[0, 4]], coords[[0, 4]])
     got = voxel_to_point(two, SparsePoints(torch.zeros(1, 1), point.coords)).feats.item()
     assert got == pytest.approx((3 * 0.0 + 1 * 1.0) / 4 * 0.125 / (0.125 + 1e-8), rel=1e-12)
+
+
+def test_kernel_map_of_runs_along_z_with_gaps_and_duplicates():
+    """the column search walks along z: a column with a gap (z = 0, 2, 3) and a duplicated voxel still finds each
+    neighbour of (0,0,1) and (0,0,2) once, duplicates at their first row."""
+    coords = torch.tensor([[0, 0, 0, 0], [0, 0, 2, 0], [0, 0, 3, 0], [0, 0, 2, 0]], dtype=torch.int32)
+    out = torch.tensor([[0, 0, 1, 0], [0, 0, 2, 0]], dtype=torch.int32)
+    kmap = build_kernel_map(coords, out, 3, 1)
+    z_pairs = {dz: (kmap.pairs[k][0].tolist(), kmap.pairs[k][1].tolist()) for dz, k in ((-1, 4), (0, 13), (1, 22))}
+    assert z_pairs == {-1: ([0], [0]), 0: ([1], [1]), 1: ([1, 2], [0, 1])}
+    assert sum(len(o) for _, o in kmap.pairs) == 4 and kmap.identity is None
+    with pytest.raises(ValueError, match="multiples of their stride 2"):
+        build_kernel_map(coords, out, 3, 2)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from i2pbench.layers.sparse import SparseVoxels, kernel_offsets, voxel_hash
+from i2pbench.layers.sparse import SparseVoxels, find_rows, kernel_offsets, voxel_hash
 
 REVISION = 0  # bump when an output of this module changes for the same inputs (see i2pbench.layers)
 
@@ -41,15 +41,6 @@ class SparsePoints:
         return SparsePoints(feats, self.coords, self.links)
 
 
-def lookup(queries: torch.Tensor, table: torch.Tensor) -> torch.Tensor:
-    """the row of each query hash in `table` (unique hashes), -1 where absent (torchsparse's `sphashquery`)."""
-    ordered, order = torch.sort(table)
-    slots = torch.searchsorted(ordered, queries).clamp_(max=max(len(table) - 1, 0))
-    if not len(table):
-        return torch.full_like(queries, -1)
-    return torch.where(ordered[slots] == queries, order[slots], torch.full_like(queries, -1))
-
-
 def average_into(feats: torch.Tensor, rows: torch.Tensor, counts: torch.Tensor) -> torch.Tensor:
     """[N x C] point features -> [V x C] per-voxel means (`spvoxelize`: each point adds feats / count)."""
     kept = rows >= 0
@@ -69,9 +60,7 @@ def initial_voxelize(points: SparsePoints, point_res: float, voxel_res: float) -
     Voxels are ordered by their coordinate hash, as torchsparse's `torch.unique(hashes)` orders them."""
     scaled = torch.cat([points.coords[:, :3] * point_res / voxel_res, points.coords[:, 3:]], dim=1)
     cells = torch.floor(scaled).to(torch.int32)
-    hashes = voxel_hash(cells)
-    table = torch.unique(hashes)
-    rows = lookup(hashes, table)
+    table, rows = torch.unique(voxel_hash(cells), return_inverse=True)
     counts = voxel_counts(rows, len(table))
     coords = torch.zeros(len(table), 4, dtype=torch.int32, device=cells.device).index_copy(0, rows, cells)
     moved = SparsePoints(points.feats, scaled, points.links)
@@ -89,7 +78,7 @@ def point_to_voxel(voxels: SparseVoxels, points: SparsePoints) -> SparseVoxels:
     """the mean of the points' features in each of `voxels`' voxels, on `voxels`' coordinates and maps."""
     stride = voxels.stride
     if stride not in points.links.voxel_rows:
-        rows = lookup(voxel_hash(_cells(points.coords, stride)), voxel_hash(voxels.coords))
+        rows = find_rows(_cells(points.coords, stride), voxels.coords)
         points.links.voxel_rows[stride] = (rows, voxel_counts(rows, len(voxels.coords)))
     rows, counts = points.links.voxel_rows[stride]
     return voxels.with_feats(average_into(points.feats, rows, counts))
@@ -120,7 +109,7 @@ def voxel_to_point(voxels: SparseVoxels, points: SparsePoints) -> SparsePoints:
         offsets = kernel_offsets(2, stride, points.coords.device)
         cells = _cells(points.coords, stride).unsqueeze(0).repeat(8, 1, 1)
         cells[..., :3] += offsets.unsqueeze(1)
-        rows = lookup(voxel_hash(cells), voxel_hash(voxels.coords))
+        rows = find_rows(cells, voxels.coords)
         with torch.no_grad():
             weights = trilinear_weights(points.coords, rows, stride)
         points.links.corners[stride] = (rows, weights)

@@ -2,9 +2,13 @@
 
 Why: torchsparse has no wheel and its CPU backend builds only from source; a gather / matmul / scatter written with
 torch ops runs forward and backward on any device with nothing compiled. Each output voxel finds its neighbour under
-every kernel offset through a hash of the voxel coordinates (the same FNV-1a hash torchsparse uses, looked up in the
-sorted hashes with `searchsorted`), the gathered rows of each offset are multiplied by that offset's `[C_in x C_out]`
-slice of the kernel, and all products are scatter-added into the output rows at once.
+every kernel offset by an exact search: coordinates become linear keys (`CoordinateKeys`), so the key of a voxel
+plus an offset is its key plus the offset's, and the sorted output keys plus an offset's key are sorted queries into
+the sorted input keys: one `searchsorted` per (x, y) column of offsets (`_column_search`). torchsparse hashes with a
+60-bit FNV-1a instead (`voxel_hash`, kept for its voxel order), which could in principle collide; exact keys agree
+with it whenever it does not. The gathered rows of each offset are multiplied by that offset's `[C_in x C_out]`
+slice of the kernel and all products are scatter-added into the output rows at once; the centre offset of a
+submanifold convolution maps every voxel to itself and is one plain matmul.
 
 What is torchsparse's and kept so that its weights and outputs carry over unchanged:
 - coordinates are int32 `[N x 4]` rows `(x, y, z, batch)`, in voxel units of the finest grid; a tensor at stride `s`
@@ -65,44 +69,127 @@ def downsample_coords(coords: torch.Tensor, stride: int, tensor_stride: int) -> 
 
 
 @dataclass(frozen=True)
+class CoordinateKeys:
+    """exact int64 keys of (x, y, z, batch) coordinates inside a box: `key(c + d) = key(c) + key_of_offset(d)`."""
+
+    low: torch.Tensor  # [4] the box's smallest corner
+    extent: torch.Tensor  # [4] its size along each axis
+
+    @staticmethod
+    def around(*coords: torch.Tensor, margin: int = 0) -> CoordinateKeys:
+        """the box holding every row of `coords`, widened by `margin` on x, y and z."""
+        rows = torch.cat([c.reshape(-1, 4) for c in coords]).to(torch.int64)
+        pad = torch.tensor([margin, margin, margin, 0], device=rows.device)
+        low = rows.min(dim=0).values - pad if len(rows) else -pad
+        high = rows.max(dim=0).values + pad if len(rows) else pad
+        return CoordinateKeys(low, high - low + 1)
+
+    def __call__(self, coords: torch.Tensor) -> torch.Tensor:
+        c = coords.to(torch.int64) - self.low
+        ex, ey, ez = self.extent[:3]
+        return ((c[..., 3] * ex + c[..., 0]) * ey + c[..., 1]) * ez + c[..., 2]
+
+    def of_offsets(self, offsets: torch.Tensor) -> torch.Tensor:
+        d = offsets.to(torch.int64)
+        return (d[:, 0] * self.extent[1] + d[:, 1]) * self.extent[2] + d[:, 2]
+
+
+def find_rows(queries: torch.Tensor, table: torch.Tensor) -> torch.Tensor:
+    """the row of `table` [M x 4] holding each coordinate of `queries` [... x 4], -1 where none (the first row of
+    duplicates, as torchsparse's hash table keeps the first inserted)."""
+    keys = CoordinateKeys.around(queries, table)
+    return _search(keys(table), keys(queries))
+
+
+def _search(table_keys: torch.Tensor, query_keys: torch.Tensor) -> torch.Tensor:
+    if not len(table_keys):
+        return torch.full_like(query_keys, -1)
+    ordered, order = torch.sort(table_keys, stable=True)
+    slots = torch.searchsorted(ordered, query_keys).clamp_(max=len(ordered) - 1)
+    return torch.where(ordered[slots] == query_keys, order[slots], torch.full_like(query_keys, -1))
+
+
+@dataclass(frozen=True)
 class KernelMap:
-    """which input row feeds which output row under each kernel offset: `pairs[k] = (inputs, outputs)` index tensors."""
+    """which input row feeds which output row under each kernel offset: `pairs[k] = (inputs, outputs)` index tensors;
+    `identity`: the offset whose pairs map every row to itself (a submanifold convolution's centre), else None."""
 
     pairs: tuple[tuple[torch.Tensor, torch.Tensor], ...]
     n_in: int
     n_out: int
+    identity: int | None = None
 
     def swapped(self) -> KernelMap:
         """the map of the transposed convolution: the same pairs read the other way round."""
-        return KernelMap(tuple((o, i) for i, o in self.pairs), self.n_out, self.n_in)
+        return KernelMap(tuple((o, i) for i, o in self.pairs), self.n_out, self.n_in, self.identity)
+
+
+def _first_rows(keys: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """the distinct keys, sorted, and the first row holding each."""
+    table, inverse = torch.unique(keys, return_inverse=True)
+    rows = torch.arange(len(keys), device=keys.device)
+    first = torch.full_like(table, len(keys)).scatter_reduce(0, inverse, rows, "amin")
+    return table, first
 
 
 def build_kernel_map(
     in_coords: torch.Tensor, out_coords: torch.Tensor, kernel_size: int, tensor_stride: int
 ) -> KernelMap:
-    """for each offset, the (input, output) rows with `in_coords[input] = out_coords[output] + offset` (by hash).
+    """for each offset, the (input, output) rows with `in_coords[input] = out_coords[output] + offset`.
 
     Duplicate input coordinates resolve to the first row, as torchsparse's hash table keeps the first inserted."""
+    if bool((in_coords[:, :3] % tensor_stride != 0).any()):
+        raise ValueError(f"build_kernel_map: input coordinates are not all multiples of their stride {tensor_stride}")
     offsets = kernel_offsets(kernel_size, tensor_stride, in_coords.device)
-    table, order = torch.sort(voxel_hash(in_coords), stable=True)
-    shifted = out_coords.unsqueeze(0).repeat(len(offsets), 1, 1)
-    shifted[..., :3] += offsets.unsqueeze(1)
-    queries = voxel_hash(shifted)
-    slots = torch.searchsorted(table, queries).clamp_(max=max(len(table) - 1, 0))
-    found = table[slots] == queries if len(table) else torch.zeros_like(queries, dtype=torch.bool)
+    keys = CoordinateKeys.around(in_coords, out_coords, margin=int(offsets.abs().max()))
+    out_keys, out_rows = torch.sort(keys(out_coords))
+    rows = _column_search(keys(in_coords), out_keys, keys, offsets)
     pairs = []
     for k in range(len(offsets)):
-        outputs = found[k].nonzero().squeeze(1)
-        pairs.append((order[slots[k, outputs]], outputs))
-    return KernelMap(tuple(pairs), len(in_coords), len(out_coords))
+        hits = (rows[k] >= 0).nonzero().squeeze(1)
+        pairs.append((rows[k, hits], out_rows[hits]))
+    same = in_coords is out_coords and len(torch.unique(keys(in_coords))) == len(in_coords)
+    centre = len(offsets) // 2 if same and len(offsets) % 2 else None
+    return KernelMap(tuple(pairs), len(in_coords), len(out_coords), centre)
+
+
+def _column_search(
+    in_keys: torch.Tensor, out_keys: torch.Tensor, keys: CoordinateKeys, offsets: torch.Tensor
+) -> torch.Tensor:
+    """[K x N_out] input row (or -1) of each sorted output key plus each offset, one `searchsorted` per (x, y)
+    offset: z is the key's fastest axis, so the inputs at z offsets d_0 < d_1 < ... of one output are consecutive
+    in the sorted input keys (coordinates are multiples of the stride, the offsets' step), found by walking on from
+    the first one's slot."""
+    rows = torch.full((len(offsets), len(out_keys)), -1, dtype=torch.int64, device=out_keys.device)
+    if not len(in_keys):
+        return rows
+    table, order = _first_rows(in_keys)
+    offset_keys = keys.of_offsets(offsets)
+    for column in torch.unique(offsets[:, :2], dim=0):
+        ks = ((offsets[:, :2] == column).all(dim=1)).nonzero().squeeze(1)
+        ks = ks[torch.argsort(offsets[ks, 2])]
+        base = out_keys + offset_keys[ks[0]]
+        slots = torch.searchsorted(table, base)
+        walked = torch.zeros_like(slots)
+        for k in ks.tolist():
+            at = (slots + walked).clamp(max=len(table) - 1)
+            hit = table[at] == out_keys + offset_keys[k]
+            rows[k] = torch.where(hit, order[at], rows[k])
+            walked += hit
+    return rows
 
 
 def apply_kernel_map(feats: torch.Tensor, kernel: torch.Tensor, kmap: KernelMap) -> torch.Tensor:
     """[n_in x C_in] -> [n_out x C_out]: gather each offset's input rows, one matmul per offset, one scatter-add."""
-    products = [feats.index_select(0, i) @ kernel[k] for k, (i, _) in enumerate(kmap.pairs)]
-    targets = torch.cat([o for _, o in kmap.pairs])
     out = feats.new_zeros(kmap.n_out, kernel.shape[-1])
-    return out.index_add(0, targets, torch.cat(products))
+    if kmap.identity is not None:
+        out = feats @ kernel[kmap.identity]
+    rest = [(k, i, o) for k, (i, o) in enumerate(kmap.pairs) if k != kmap.identity and len(o)]
+    if not rest:
+        return out
+    products = torch.cat([feats.index_select(0, i) @ kernel[k] for k, i, _ in rest])
+    targets = torch.cat([o for _, _, o in rest]).unsqueeze(1).expand(-1, kernel.shape[-1])
+    return out.scatter_add(0, targets, products)
 
 
 @dataclass
