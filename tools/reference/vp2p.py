@@ -1,0 +1,126 @@
+"""Write reference vectors of the authors' VP2P-Match modules, run from their checkout on CPU.
+
+    /tmp/tsvenv/bin/python tools/reference/vp2p.py --checkout /work/peers/VP2P-Match \
+        --frame ../shared/data/kitti_odometry/sequences/00 --frame-index 000000 --out tests/data/vp2p_reference \
+        [--n 1024] [--seed 0] [--salt ""]
+
+Needs torchsparse 2.0.0 importable (built from source; tools/reference/sparse.py's CPU stand-ins are applied) and
+open3d. Today it covers the voxel branch (`models/spvnas/models/semantic_kitti/spvcnn.py`'s SPVCNN as
+`models/triplet_network.py` builds and feeds it: cr 0.5, 0.05 m voxels, 128 outputs); the image and point branches,
+the fusion and the heads are not recorded yet. Inputs: the frame's scan, voxel-downsampled at 0.1 m with normals from
+a 0.6 m neighbourhood (the layout of the authors' `voxel0.1-SNr0.6` files), `n` points drawn with `seed`. Weights:
+the recipe of ../shared/data/edgeregnet_reference/README.md (`crc32(key + salt)`, kernels scaled by their fan-in),
+for the authors' state dict keys (`voxel_branch.*`, as VP2PMatchNet names the branch). Written: `inputs.npz` (pc,
+intensity, sn channels first), `outputs.npz` (`voxel_branch.*`: x0 after the stem, x4 after the encoder, y2 and y4
+after the decoder's halves, devox0-devox3 each trilinear read, pointwise [128 x n] and global [128]),
+`state_dict_shapes.json`, `weights.sha256`, `meta.json`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+import torch
+from i2pbench_vp2p_match.reference import recipe_state
+
+
+def sparse_reference_module():
+    spec = importlib.util.spec_from_file_location("sparse_reference", Path(__file__).with_name("sparse.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def frame_points(frame: Path, index: str, n: int, seed: int) -> dict[str, np.ndarray]:
+    """pc [3 x n], intensity [1 x n], sn [3 x n] from the frame's scan, as described in the module docstring."""
+    scan = np.fromfile(frame / "velodyne" / f"{index}.bin", np.float32).reshape(-1, 4)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(scan[:, :3].astype(np.float64)))
+    cloud.colors = o3d.utility.Vector3dVector(np.repeat(scan[:, 3:4].astype(np.float64), 3, axis=1))
+    cloud = cloud.voxel_down_sample(0.1)
+    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamRadius(0.6))
+    points, normals = np.asarray(cloud.points), np.asarray(cloud.normals)
+    chosen = np.sort(np.random.default_rng(seed).choice(len(points), n, replace=False))
+    return {
+        "pc": points[chosen].T.astype(np.float32),
+        "intensity": np.asarray(cloud.colors)[chosen, :1].T.astype(np.float32),
+        "sn": normals[chosen].T.astype(np.float32),
+    }
+
+
+def run_voxel_branch(checkout: Path, inputs: dict[str, np.ndarray], salt: str) -> tuple[dict, dict, str, int]:
+    """the authors' SPVCNN with recipe weights on the inputs: (outputs, state dict shapes, weights sha256, number of
+    parameters)."""
+    sys.path.insert(0, str(checkout))
+    import models.spvnas.models.semantic_kitti.spvcnn as spvcnn  # the authors' module, from the checkout
+
+    branch = spvcnn.SPVCNN(num_classes=128, cr=0.5, pres=0.05, vres=0.05)
+    shapes = {f"voxel_branch.{k}": list(v.shape) for k, v in branch.state_dict().items()}
+    state, digest = recipe_state(shapes, salt)
+    branch.load_state_dict({k.removeprefix("voxel_branch."): v for k, v in state.items()})
+    branch.eval()
+    out: dict[str, torch.Tensor] = {}
+    reads = []
+    to_point = spvcnn.voxel_to_point
+
+    def recorded(x, z, nearest=False):
+        result = to_point(x, z, nearest)
+        reads.append(result.F.clone())
+        return result
+
+    spvcnn.voxel_to_point = recorded
+    for name, module in (("x0", branch.stem), ("x4", branch.stage4), ("y2", branch.up2[1]), ("y4", branch.up4[1])):
+        module.register_forward_hook(lambda m, i, o, name=name: out.__setitem__(name, o.F.clone()))
+    pc = torch.from_numpy(inputs["pc"]).unsqueeze(0)
+    intensity, sn = torch.from_numpy(inputs["intensity"]).unsqueeze(0), torch.from_numpy(inputs["sn"]).unsqueeze(0)
+    feats = torch.cat((pc, intensity, sn), dim=1).transpose(2, 1).reshape(-1, 7)  # triplet_network.py's math
+    corrds = pc.transpose(2, 1) - torch.min(pc.transpose(2, 1), dim=1, keepdim=True)[0]
+    corrds = torch.round(corrds.reshape(-1, 3) / 0.05)
+    corrds = torch.cat((corrds, torch.zeros(len(corrds), 1)), dim=-1)
+    with torch.no_grad():
+        global_feat, pointwise = branch(feats, corrds, 1)
+    out.update({f"devox{i}": r for i, r in enumerate(reads)})
+    out["pointwise"], out["global"] = pointwise[0], global_feat[0]
+    parameters = sum(p.numel() for p in branch.parameters())
+    return {f"voxel_branch.{k}": v.numpy() for k, v in out.items()}, shapes, digest, parameters
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--checkout", type=Path, required=True, help="junshengzhou/VP2P-Match")
+    parser.add_argument("--frame", type=Path, required=True, help="a KITTI odometry sequence folder")
+    parser.add_argument("--frame-index", default="000000")
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--n", type=int, default=1024, help="points drawn from the downsampled scan")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--salt", default="")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    sparse_reference_module().add_cpu_stand_ins()
+    inputs = frame_points(args.frame, args.frame_index, args.n, args.seed)
+    outputs, shapes, digest, parameters = run_voxel_branch(args.checkout, inputs, args.salt)
+    args.out.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(args.out / "inputs.npz", **inputs)
+    np.savez_compressed(args.out / "outputs.npz", **outputs)
+    (args.out / "state_dict_shapes.json").write_text(json.dumps(shapes, indent=0) + "\n")
+    (args.out / "weights.sha256").write_text(f"{digest}  recipe, salt {args.salt!r}\n")
+    meta = {
+        "frame": "/".join(args.frame.resolve().parts[-2:]),
+        "frame_index": args.frame_index,
+        "n": args.n,
+        "seed": args.seed,
+        "salt": args.salt,
+        "checkout": "junshengzhou/VP2P-Match be76104",
+        "modules": ["voxel_branch"],
+        "parameters": {"voxel_branch": parameters},
+    }
+    (args.out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
