@@ -1,7 +1,8 @@
 """VP2P-Match's official modules compute the authors' function: on reference vectors their code produced on CPU
 (tools/reference/vp2p.py; folder from I2PBENCH_VP2P_REFERENCE, default tests/data/vp2p_reference), with the seeded
 weights loaded under the authors' state dict keys, every recorded tensor agrees within 1e-4 of its largest value.
-Today the folder covers the voxel branch (SPVCNN). Nothing here assumes the particular set (frame, n, seed, salt)."""
+Today the folder covers the image branch (Image_ResNet) and the voxel branch (SPVCNN). Nothing here assumes the
+particular set (frame, n, seed, salt)."""
 
 import json
 import os
@@ -9,14 +10,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from i2pbench_vp2p_match.official.image import ImageResNet
 from i2pbench_vp2p_match.official.spvcnn import SPVCNN
-from i2pbench_vp2p_match.reference import folder_state, voxel_branch_forward
+from i2pbench_vp2p_match.reference import folder_state, image_branch_forward, voxel_branch_forward
 
 FOLDER = Path(os.environ.get("I2PBENCH_VP2P_REFERENCE") or Path(__file__).parent / "data" / "vp2p_reference")
 pytestmark = pytest.mark.skipif(
     not (FOLDER / "outputs.npz").is_file(), reason=f"no VP2P-Match reference vectors at {FOLDER}"
 )
 RELATIVE = 1e-4
+BRANCHES = {"image_branch": (ImageResNet, "resnet."), "voxel_branch": (SPVCNN, "voxel_branch.")}  # ours, their prefix
 
 
 def relative_error(ours: np.ndarray, ref: np.ndarray) -> float:
@@ -38,30 +41,33 @@ def state():
 
 @pytest.fixture(scope="module")
 def ours(reference, state):
-    return voxel_branch_forward(state, reference[0])
+    return {**image_branch_forward(state, reference[0]), **voxel_branch_forward(state, reference[0])}
 
 
-def test_reference_state_dict_keys_and_shapes_are_the_authors(state):
-    branch = SPVCNN().state_dict()
-    ours = {f"voxel_branch.{k}": list(v.shape) for k, v in branch.items()}
-    theirs = {k: v for k, v in json.loads((FOLDER / "state_dict_shapes.json").read_text()).items()}
-    assert {k: v for k, v in theirs.items() if k.startswith("voxel_branch.")} == ours
+@pytest.mark.parametrize("branch", BRANCHES)
+def test_reference_state_dict_keys_and_shapes_are_the_authors(branch):
+    module, prefix = BRANCHES[branch]
+    ours = {prefix + k: list(v.shape) for k, v in module().state_dict().items()}
+    theirs = json.loads((FOLDER / "state_dict_shapes.json").read_text())
+    assert {k: v for k, v in theirs.items() if k.startswith(prefix)} == ours
 
 
-def test_reference_parameter_count_is_the_authors():
+@pytest.mark.parametrize("branch", BRANCHES)
+def test_reference_parameter_count_is_the_authors(branch):
     meta = json.loads((FOLDER / "meta.json").read_text())
-    assert sum(p.numel() for p in SPVCNN().parameters()) == meta["parameters"]["voxel_branch"]
+    assert sum(p.numel() for p in BRANCHES[branch][0]().parameters()) == meta["parameters"][branch]
 
 
-def test_reference_voxel_branch_agrees(reference, ours):
-    ref = {k: v for k, v in reference[1].items() if k.startswith("voxel_branch.")}
-    assert "voxel_branch.pointwise" in ref and set(ours) == set(ref)
+@pytest.mark.parametrize("branch", BRANCHES)
+def test_reference_branch_agrees(reference, ours, branch):
+    ref = {k: v for k, v in reference[1].items() if k.startswith(branch + ".")}
+    assert f"{branch}.global" in ref and set(ref) == {k for k in ours if k.startswith(branch + ".")}
     errors = {k: relative_error(ours[k], ref[k]) for k in ref}
     assert max(errors.values()) <= RELATIVE, {k: e for k, e in errors.items() if e > RELATIVE}
 
 
-def test_reference_voxel_branch_fails_on_altered_tensors(reference, ours):
-    for key in ("voxel_branch.x0", "voxel_branch.y4", "voxel_branch.pointwise"):
+def test_reference_fails_on_altered_tensors(reference, ours):
+    for key in ("image_branch.mid", "image_branch.global", "voxel_branch.x0", "voxel_branch.pointwise"):
         altered = reference[1][key].copy()
         altered.flat[len(altered.flat) // 3] += 1e-3 * np.abs(altered).max()
         assert relative_error(ours[key], altered) > RELATIVE, key

@@ -5,13 +5,16 @@
         [--n 1024] [--seed 0] [--salt ""]
 
 Needs torchsparse 2.0.0 importable (built from source; tools/reference/sparse.py's CPU stand-ins are applied) and
-open3d. Today it covers the voxel branch (`models/spvnas/models/semantic_kitti/spvcnn.py`'s SPVCNN as
-`models/triplet_network.py` builds and feeds it: cr 0.5, 0.05 m voxels, 128 outputs); the image and point branches,
-the fusion and the heads are not recorded yet. Inputs: the frame's scan, voxel-downsampled at 0.1 m with normals from
-a 0.6 m neighbourhood (the layout of the authors' `voxel0.1-SNr0.6` files), `n` points drawn with `seed`. Weights:
-the recipe of ../shared/data/edgeregnet_reference/README.md (`crc32(key + salt)`, kernels scaled by their fan-in),
-for the authors' state dict keys (`voxel_branch.*`, as VP2PMatchNet names the branch). Written: `inputs.npz` (pc,
-intensity, sn channels first), `outputs.npz` (`voxel_branch.*`: x0 after the stem, x4 after the encoder, y2 and y4
+open3d. Today it covers the image branch (`models/network_img/resnet.py`'s Image_ResNet, `resnet.*`) and the voxel
+branch (`models/spvnas/models/semantic_kitti/spvcnn.py`'s SPVCNN as `models/triplet_network.py` builds and feeds it:
+cr 0.5, 0.05 m voxels, 128 outputs); the point branch, the fusion and the heads are not recorded yet. Inputs: the
+frame's camera-2 image at half resolution (the authors' scale), its centre `--image-size` crop; the frame's scan,
+voxel-downsampled at 0.1 m with normals from a 0.6 m neighbourhood (the layout of the authors' `voxel0.1-SNr0.6`
+files), `n` points drawn with `seed`. Weights: the recipe of ../shared/data/edgeregnet_reference/README.md
+(`crc32(key + salt)`, kernels scaled by their fan-in), for the authors' state dict keys (`resnet.*`,
+`voxel_branch.*`, as VP2PMatchNet names the branches). Written: `inputs.npz` (pc,
+intensity, sn channels first; img [3 x H x W] in [0, 1]), `outputs.npz` (`image_branch.*`: global [512], the /32
+map s32 and the upsampling stages f16, f8, mid; `voxel_branch.*`: x0 after the stem, x4 after the encoder, y2 and y4
 after the decoder's halves, devox0-devox3 each trilinear read, pointwise [128 x n] and global [128]),
 `state_dict_shapes.json`, `weights.sha256`, `meta.json`.
 """
@@ -24,6 +27,7 @@ import json
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import open3d as o3d
 import torch
@@ -35,6 +39,36 @@ def sparse_reference_module():
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def frame_image(frame: Path, index: str, size: tuple[int, int]) -> np.ndarray:
+    """[3 x H x W] float32 in [0, 1]: the frame's camera-2 image at half resolution (the authors' scale), the centre
+    `size` crop (the modules are convolutional: a crop proves the same function as the full 160 x 512 input)."""
+    image = cv2.cvtColor(cv2.imread(str(frame / "image_2" / f"{index}.png")), cv2.COLOR_BGR2RGB)
+    image = cv2.resize(image, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_LINEAR)
+    top, left = (image.shape[0] - size[0]) // 2, (image.shape[1] - size[1]) // 2
+    crop = image[top : top + size[0], left : left + size[1]]
+    return np.ascontiguousarray(crop.transpose(2, 0, 1), dtype=np.float32) / 255
+
+
+def run_image_branch(inputs: dict[str, np.ndarray], salt: str) -> tuple[dict, dict, str, int]:
+    """the authors' Image_ResNet with recipe weights on the image (the checkout already on sys.path)."""
+    from models.network_img.resnet import Image_ResNet  # the authors' module, from the checkout
+
+    branch = Image_ResNet()
+    shapes = {f"resnet.{k}": list(v.shape) for k, v in branch.state_dict().items()}
+    state, digest = recipe_state(shapes, salt)
+    branch.load_state_dict({k.removeprefix("resnet."): v for k, v in state.items()})
+    branch.eval()
+    out: dict[str, torch.Tensor] = {}
+    for name, module in (("f16", branch.up_conv1), ("f8", branch.up_conv2), ("mid", branch.up_conv3)):
+        module.register_forward_hook(lambda m, i, o, name=name: out.__setitem__(name, o[0].clone()))
+    branch.encoder.register_forward_hook(lambda m, i, o: out.__setitem__("s32", o[-2][0].clone()))
+    with torch.no_grad():
+        global_feat, _ = branch(torch.from_numpy(inputs["img"]).unsqueeze(0))
+    out["global"] = global_feat[0]
+    parameters = sum(p.numel() for p in branch.parameters())
+    return {f"image_branch.{k}": v.numpy() for k, v in out.items()}, shapes, digest, parameters
 
 
 def frame_points(frame: Path, index: str, n: int, seed: int) -> dict[str, np.ndarray]:
@@ -99,11 +133,17 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=1024, help="points drawn from the downsampled scan")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--salt", default="")
+    parser.add_argument("--image-size", type=int, nargs=2, default=(96, 256), help="crop of the half-size image")
     args = parser.parse_args()
     torch.set_num_threads(1)
     sparse_reference_module().add_cpu_stand_ins()
     inputs = frame_points(args.frame, args.frame_index, args.n, args.seed)
+    inputs["img"] = frame_image(args.frame, args.frame_index, tuple(args.image_size))
     outputs, shapes, digest, parameters = run_voxel_branch(args.checkout, inputs, args.salt)
+    image_outputs, image_shapes, _, image_parameters = run_image_branch(inputs, args.salt)
+    outputs.update(image_outputs)
+    shapes = {**image_shapes, **shapes}
+    _, digest = recipe_state(shapes, args.salt)
     args.out.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(args.out / "inputs.npz", **inputs)
     np.savez_compressed(args.out / "outputs.npz", **outputs)
@@ -116,8 +156,9 @@ def main() -> None:
         "seed": args.seed,
         "salt": args.salt,
         "checkout": "junshengzhou/VP2P-Match be76104",
-        "modules": ["voxel_branch"],
-        "parameters": {"voxel_branch": parameters},
+        "modules": ["image_branch", "voxel_branch"],
+        "image_size": list(args.image_size),
+        "parameters": {"image_branch": image_parameters, "voxel_branch": parameters},
     }
     (args.out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
 

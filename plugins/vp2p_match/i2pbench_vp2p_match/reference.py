@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .official.image import ImageResNet
 from .official.spvcnn import SPVCNN, voxel_coordinates
 
 
@@ -57,11 +58,24 @@ def voxel_branch_inputs(inputs: dict[str, np.ndarray]) -> tuple[torch.Tensor, to
     return feats, voxel_coordinates(pc)
 
 
+def loaded(module: torch.nn.Module, state: dict[str, torch.Tensor], prefix: str) -> torch.nn.Module:
+    """`module` in eval mode with the `prefix`ed part of the authors' state dict (strictly: every key used)."""
+    module.load_state_dict({k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)})
+    return module.eval()
+
+
+def image_branch_forward(state: dict[str, torch.Tensor], inputs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """the official image branch with the `resnet.*` weights (VP2PMatchNet's name): the folder's `image_branch.*`."""
+    branch = loaded(ImageResNet(), state, "resnet.")
+    with torch.no_grad():
+        trace = branch.trace(torch.from_numpy(inputs["img"]).unsqueeze(0))
+    return {f"image_branch.{k}": v[0].numpy() for k, v in trace.items()}
+
+
 def voxel_branch_forward(state: dict[str, torch.Tensor], inputs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """the official voxel branch in eval mode with the `voxel_branch.*` weights: the folder's `voxel_branch.*`."""
-    branch = SPVCNN().eval()
     prefix = "voxel_branch."
-    branch.load_state_dict({k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)})
+    branch = loaded(SPVCNN(), state, prefix)
     feats, coords = voxel_branch_inputs(inputs)
     with torch.no_grad():
         trace = branch.trace(feats, coords)
