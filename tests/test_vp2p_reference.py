@@ -1,8 +1,8 @@
 """VP2P-Match's official modules compute the authors' function: on reference vectors their code produced on CPU
 (tools/reference/vp2p.py; folder from I2PBENCH_VP2P_REFERENCE, default tests/data/vp2p_reference), with the seeded
 weights loaded under the authors' state dict keys, every recorded tensor agrees within 1e-4 of its largest value.
-Today the folder covers the image branch (Image_ResNet) and the voxel branch (SPVCNN). Nothing here assumes the
-particular set (frame, n, seed, salt)."""
+Today the folder covers the three branches: image (Image_ResNet), point (Point Transformer) and voxel (SPVCNN).
+Nothing here assumes the particular set (frame, n, seed, salt)."""
 
 import json
 import os
@@ -11,15 +11,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 from i2pbench_vp2p_match.official.image import ImageResNet
+from i2pbench_vp2p_match.official.points import PointsEncoder
 from i2pbench_vp2p_match.official.spvcnn import SPVCNN
-from i2pbench_vp2p_match.reference import folder_state, image_branch_forward, voxel_branch_forward
+from i2pbench_vp2p_match.reference import (
+    folder_state,
+    image_branch_forward,
+    point_branch_forward,
+    voxel_branch_forward,
+)
 
 FOLDER = Path(os.environ.get("I2PBENCH_VP2P_REFERENCE") or Path(__file__).parent / "data" / "vp2p_reference")
 pytestmark = pytest.mark.skipif(
     not (FOLDER / "outputs.npz").is_file(), reason=f"no VP2P-Match reference vectors at {FOLDER}"
 )
 RELATIVE = 1e-4
-BRANCHES = {"image_branch": (ImageResNet, "resnet."), "voxel_branch": (SPVCNN, "voxel_branch.")}  # ours, their prefix
+BRANCHES = {  # ours, the authors' prefix
+    "image_branch": (ImageResNet, "resnet."),
+    "point_branch": (PointsEncoder, "point_transformer."),
+    "voxel_branch": (SPVCNN, "voxel_branch."),
+}
+FORWARDS = (image_branch_forward, point_branch_forward, voxel_branch_forward)
 
 
 def relative_error(ours: np.ndarray, ref: np.ndarray) -> float:
@@ -41,7 +52,7 @@ def state():
 
 @pytest.fixture(scope="module")
 def ours(reference, state):
-    return {**image_branch_forward(state, reference[0]), **voxel_branch_forward(state, reference[0])}
+    return {k: v for forward in FORWARDS for k, v in forward(state, reference[0]).items()}
 
 
 @pytest.mark.parametrize("branch", BRANCHES)
@@ -67,7 +78,8 @@ def test_reference_branch_agrees(reference, ours, branch):
 
 
 def test_reference_fails_on_altered_tensors(reference, ours):
-    for key in ("image_branch.mid", "image_branch.global", "voxel_branch.x0", "voxel_branch.pointwise"):
+    keys = ("image_branch.mid", "image_branch.global", "point_branch.l1_up", "point_branch.pointwise")
+    for key in (*keys, "voxel_branch.x0", "voxel_branch.pointwise"):
         altered = reference[1][key].copy()
         altered.flat[len(altered.flat) // 3] += 1e-3 * np.abs(altered).max()
         assert relative_error(ours[key], altered) > RELATIVE, key

@@ -5,18 +5,21 @@
         [--n 1024] [--seed 0] [--salt ""]
 
 Needs torchsparse 2.0.0 importable (built from source; tools/reference/sparse.py's CPU stand-ins are applied) and
-open3d. Today it covers the image branch (`models/network_img/resnet.py`'s Image_ResNet, `resnet.*`) and the voxel
+open3d. Today it covers the image branch (`models/network_img/resnet.py`'s Image_ResNet, `resnet.*`), the point
+branch (`models/pointTransformer/point_transformer.py`'s PointsEncoder_pointwise with `is_pc_norm=False`,
+`point_transformer.*`; pointnet2_ops, CUDA only, stood in for by tools/reference/pointnet2_cpu.py) and the voxel
 branch (`models/spvnas/models/semantic_kitti/spvcnn.py`'s SPVCNN as `models/triplet_network.py` builds and feeds it:
-cr 0.5, 0.05 m voxels, 128 outputs); the point branch, the fusion and the heads are not recorded yet. Inputs: the
+cr 0.5, 0.05 m voxels, 128 outputs); the fusion and the heads are not recorded yet. Inputs: the
 frame's camera-2 image at half resolution (the authors' scale), its centre `--image-size` crop; the frame's scan,
 voxel-downsampled at 0.1 m with normals from a 0.6 m neighbourhood (the layout of the authors' `voxel0.1-SNr0.6`
 files), `n` points drawn with `seed`. Weights: the recipe of ../shared/data/edgeregnet_reference/README.md
 (`crc32(key + salt)`, kernels scaled by their fan-in), for the authors' state dict keys (`resnet.*`,
 `voxel_branch.*`, as VP2PMatchNet names the branches). Written: `inputs.npz` (pc,
 intensity, sn channels first; img [3 x H x W] in [0, 1]), `outputs.npz` (`image_branch.*`: global [512], the /32
-map s32 and the upsampling stages f16, f8, mid; `voxel_branch.*`: x0 after the stem, x4 after the encoder, y2 and y4
-after the decoder's halves, devox0-devox3 each trilinear read, pointwise [128 x n] and global [128]),
-`state_dict_shapes.json`, `weights.sha256`, `meta.json`.
+map s32 and the upsampling stages f16, f8, mid; `point_branch.*`: the sampled centres l1_xyz, l2_xyz, the features
+after each transformer l1_down, l2_down, l2_up, l1_up, global [512], pointwise [128 x n]; `voxel_branch.*`: x0
+after the stem, x4 after the encoder, y2 and y4 after the decoder's halves, devox0-devox3 each trilinear read,
+pointwise [128 x n] and global [128]), `state_dict_shapes.json`, `weights.sha256`, `meta.json`.
 """
 
 from __future__ import annotations
@@ -34,8 +37,9 @@ import torch
 from i2pbench_vp2p_match.reference import recipe_state
 
 
-def sparse_reference_module():
-    spec = importlib.util.spec_from_file_location("sparse_reference", Path(__file__).with_name("sparse.py"))
+def load_sibling(name: str):
+    """a module of this folder (tools/reference is no package)."""
+    spec = importlib.util.spec_from_file_location(f"reference_{name}", Path(__file__).with_name(f"{name}.py"))
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -69,6 +73,33 @@ def run_image_branch(inputs: dict[str, np.ndarray], salt: str) -> tuple[dict, di
     out["global"] = global_feat[0]
     parameters = sum(p.numel() for p in branch.parameters())
     return {f"image_branch.{k}": v.numpy() for k, v in out.items()}, shapes, digest, parameters
+
+
+def run_point_branch(inputs: dict[str, np.ndarray], salt: str) -> tuple[dict, dict, str, int]:
+    """the authors' PointsEncoder_pointwise (is_pc_norm False) with recipe weights, pointnet2_ops stood in for."""
+    load_sibling("pointnet2_cpu").install()
+    from models.pointTransformer.point_transformer import PointsEncoder_pointwise  # the authors' module
+
+    branch = PointsEncoder_pointwise(False)
+    shapes = {f"point_transformer.{k}": list(v.shape) for k, v in branch.state_dict().items()}
+    state, digest = recipe_state(shapes, salt)
+    branch.load_state_dict({k.removeprefix("point_transformer."): v for k, v in state.items()})
+    branch.eval()
+    out: dict[str, torch.Tensor] = {}
+    hooks = {
+        "l1_down": branch.transformer_start_1, "l2_down": branch.transformer_start_2,
+        "l2_up": branch.transformer_end_2, "l1_up": branch.transformer_end_1,
+    }  # fmt: skip
+    for name, module in hooks.items():
+        module.register_forward_hook(lambda m, i, o, name=name: out.__setitem__(name, o[0].clone()))
+    for name, module in (("l1_xyz", branch.sa_module_1), ("l2_xyz", branch.sa_module_2)):
+        module.register_forward_hook(lambda m, i, o, name=name: out.__setitem__(name, o[0][0].clone()))
+    cloud = torch.from_numpy(np.concatenate([inputs["pc"], inputs["intensity"], inputs["sn"]])).unsqueeze(0)
+    with torch.no_grad():
+        global_feat, pointwise = branch(cloud)
+    out["global"], out["pointwise"] = global_feat[0], pointwise[0]
+    parameters = sum(p.numel() for p in branch.parameters())
+    return {f"point_branch.{k}": v.numpy() for k, v in out.items()}, shapes, digest, parameters
 
 
 def frame_points(frame: Path, index: str, n: int, seed: int) -> dict[str, np.ndarray]:
@@ -136,13 +167,15 @@ def main() -> None:
     parser.add_argument("--image-size", type=int, nargs=2, default=(96, 256), help="crop of the half-size image")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    sparse_reference_module().add_cpu_stand_ins()
+    load_sibling("sparse").add_cpu_stand_ins()
     inputs = frame_points(args.frame, args.frame_index, args.n, args.seed)
     inputs["img"] = frame_image(args.frame, args.frame_index, tuple(args.image_size))
     outputs, shapes, digest, parameters = run_voxel_branch(args.checkout, inputs, args.salt)
     image_outputs, image_shapes, _, image_parameters = run_image_branch(inputs, args.salt)
+    point_outputs, point_shapes, _, point_parameters = run_point_branch(inputs, args.salt)
     outputs.update(image_outputs)
-    shapes = {**image_shapes, **shapes}
+    outputs.update(point_outputs)
+    shapes = {**point_shapes, **shapes, **image_shapes}  # VP2PMatchNet's order: point, voxel, image branches
     _, digest = recipe_state(shapes, args.salt)
     args.out.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(args.out / "inputs.npz", **inputs)
@@ -156,9 +189,9 @@ def main() -> None:
         "seed": args.seed,
         "salt": args.salt,
         "checkout": "junshengzhou/VP2P-Match be76104",
-        "modules": ["image_branch", "voxel_branch"],
+        "modules": ["image_branch", "point_branch", "voxel_branch"],
         "image_size": list(args.image_size),
-        "parameters": {"image_branch": image_parameters, "voxel_branch": parameters},
+        "parameters": {"image_branch": image_parameters, "point_branch": point_parameters, "voxel_branch": parameters},
     }
     (args.out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
 

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from .official.image import ImageResNet
+from .official.points import PointsEncoder
 from .official.spvcnn import SPVCNN, voxel_coordinates
 
 
@@ -70,6 +71,15 @@ def image_branch_forward(state: dict[str, torch.Tensor], inputs: dict[str, np.nd
     with torch.no_grad():
         trace = branch.trace(torch.from_numpy(inputs["img"]).unsqueeze(0))
     return {f"image_branch.{k}": v[0].numpy() for k, v in trace.items()}
+
+
+def point_branch_forward(state: dict[str, torch.Tensor], inputs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """the official point branch with the `point_transformer.*` weights: the folder's `point_branch.*`."""
+    branch = loaded(PointsEncoder(), state, "point_transformer.")
+    cloud = torch.from_numpy(np.concatenate([inputs["pc"], inputs["intensity"], inputs["sn"]])).unsqueeze(0)
+    with torch.no_grad():
+        trace = branch.trace(cloud)
+    return {f"point_branch.{k}": v[0].numpy() for k, v in trace.items()}
 
 
 def voxel_branch_forward(state: dict[str, torch.Tensor], inputs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
