@@ -1,7 +1,8 @@
 """VP2P-Match's official modules compute the authors' function: on reference vectors their code produced on CPU
 (tools/reference/vp2p.py; folder from I2PBENCH_VP2P_REFERENCE, default tests/data/vp2p_reference), with the seeded
 weights loaded under the authors' state dict keys, every recorded tensor agrees within 1e-4 of its largest value.
-Today the folder covers the three branches: image (Image_ResNet), point (Point Transformer) and voxel (SPVCNN).
+The folder covers the three branches, image (Image_ResNet), point (Point Transformer) and voxel (SPVCNN), and the
+whole network's outputs (VP2PMatchNet: fusion and heads).
 Nothing here assumes the particular set (frame, n, seed, salt)."""
 
 import json
@@ -11,11 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from i2pbench_vp2p_match.official.image import ImageResNet
+from i2pbench_vp2p_match.official.network import VP2PMatchNet
 from i2pbench_vp2p_match.official.points import PointsEncoder
 from i2pbench_vp2p_match.official.spvcnn import SPVCNN
 from i2pbench_vp2p_match.reference import (
     folder_state,
     image_branch_forward,
+    network_forward,
     point_branch_forward,
     voxel_branch_forward,
 )
@@ -29,8 +32,10 @@ BRANCHES = {  # ours, the authors' prefix
     "image_branch": (ImageResNet, "resnet."),
     "point_branch": (PointsEncoder, "point_transformer."),
     "voxel_branch": (SPVCNN, "voxel_branch."),
+    "network": (VP2PMatchNet, ""),
 }
-FORWARDS = (image_branch_forward, point_branch_forward, voxel_branch_forward)
+FORWARDS = (image_branch_forward, point_branch_forward, voxel_branch_forward, network_forward)
+GLOBAL = {"network": "network.pc_score"}  # a tensor each part's set must hold
 
 
 def relative_error(ours: np.ndarray, ref: np.ndarray) -> float:
@@ -72,14 +77,14 @@ def test_reference_parameter_count_is_the_authors(branch):
 @pytest.mark.parametrize("branch", BRANCHES)
 def test_reference_branch_agrees(reference, ours, branch):
     ref = {k: v for k, v in reference[1].items() if k.startswith(branch + ".")}
-    assert f"{branch}.global" in ref and set(ref) == {k for k in ours if k.startswith(branch + ".")}
+    assert GLOBAL.get(branch, f"{branch}.global") in ref and set(ref) == {k for k in ours if k.startswith(branch + ".")}
     errors = {k: relative_error(ours[k], ref[k]) for k in ref}
     assert max(errors.values()) <= RELATIVE, {k: e for k, e in errors.items() if e > RELATIVE}
 
 
 def test_reference_fails_on_altered_tensors(reference, ours):
     keys = ("image_branch.mid", "image_branch.global", "point_branch.l1_up", "point_branch.pointwise")
-    for key in (*keys, "voxel_branch.x0", "voxel_branch.pointwise"):
+    for key in (*keys, "voxel_branch.x0", "voxel_branch.pointwise", "network.point_feat", "network.img_score"):
         altered = reference[1][key].copy()
         altered.flat[len(altered.flat) // 3] += 1e-3 * np.abs(altered).max()
         assert relative_error(ours[key], altered) > RELATIVE, key

@@ -34,7 +34,10 @@ import cv2
 import numpy as np
 import open3d as o3d
 import torch
+import torch.utils.hooks
 from i2pbench_vp2p_match.reference import recipe_state
+
+CLOUD = ("pc", "intensity", "sn")  # VP2PMatchNet's point inputs, channels first
 
 
 def load_sibling(name: str):
@@ -55,53 +58,6 @@ def frame_image(frame: Path, index: str, size: tuple[int, int]) -> np.ndarray:
     return np.ascontiguousarray(crop.transpose(2, 0, 1), dtype=np.float32) / 255
 
 
-def run_image_branch(inputs: dict[str, np.ndarray], salt: str) -> tuple[dict, dict, str, int]:
-    """the authors' Image_ResNet with recipe weights on the image (the checkout already on sys.path)."""
-    from models.network_img.resnet import Image_ResNet  # the authors' module, from the checkout
-
-    branch = Image_ResNet()
-    shapes = {f"resnet.{k}": list(v.shape) for k, v in branch.state_dict().items()}
-    state, digest = recipe_state(shapes, salt)
-    branch.load_state_dict({k.removeprefix("resnet."): v for k, v in state.items()})
-    branch.eval()
-    out: dict[str, torch.Tensor] = {}
-    for name, module in (("f16", branch.up_conv1), ("f8", branch.up_conv2), ("mid", branch.up_conv3)):
-        module.register_forward_hook(lambda m, i, o, name=name: out.__setitem__(name, o[0].clone()))
-    branch.encoder.register_forward_hook(lambda m, i, o: out.__setitem__("s32", o[-2][0].clone()))
-    with torch.no_grad():
-        global_feat, _ = branch(torch.from_numpy(inputs["img"]).unsqueeze(0))
-    out["global"] = global_feat[0]
-    parameters = sum(p.numel() for p in branch.parameters())
-    return {f"image_branch.{k}": v.numpy() for k, v in out.items()}, shapes, digest, parameters
-
-
-def run_point_branch(inputs: dict[str, np.ndarray], salt: str) -> tuple[dict, dict, str, int]:
-    """the authors' PointsEncoder_pointwise (is_pc_norm False) with recipe weights, pointnet2_ops stood in for."""
-    load_sibling("pointnet2_cpu").install()
-    from models.pointTransformer.point_transformer import PointsEncoder_pointwise  # the authors' module
-
-    branch = PointsEncoder_pointwise(False)
-    shapes = {f"point_transformer.{k}": list(v.shape) for k, v in branch.state_dict().items()}
-    state, digest = recipe_state(shapes, salt)
-    branch.load_state_dict({k.removeprefix("point_transformer."): v for k, v in state.items()})
-    branch.eval()
-    out: dict[str, torch.Tensor] = {}
-    hooks = {
-        "l1_down": branch.transformer_start_1, "l2_down": branch.transformer_start_2,
-        "l2_up": branch.transformer_end_2, "l1_up": branch.transformer_end_1,
-    }  # fmt: skip
-    for name, module in hooks.items():
-        module.register_forward_hook(lambda m, i, o, name=name: out.__setitem__(name, o[0].clone()))
-    for name, module in (("l1_xyz", branch.sa_module_1), ("l2_xyz", branch.sa_module_2)):
-        module.register_forward_hook(lambda m, i, o, name=name: out.__setitem__(name, o[0][0].clone()))
-    cloud = torch.from_numpy(np.concatenate([inputs["pc"], inputs["intensity"], inputs["sn"]])).unsqueeze(0)
-    with torch.no_grad():
-        global_feat, pointwise = branch(cloud)
-    out["global"], out["pointwise"] = global_feat[0], pointwise[0]
-    parameters = sum(p.numel() for p in branch.parameters())
-    return {f"point_branch.{k}": v.numpy() for k, v in out.items()}, shapes, digest, parameters
-
-
 def frame_points(frame: Path, index: str, n: int, seed: int) -> dict[str, np.ndarray]:
     """pc [3 x n], intensity [1 x n], sn [3 x n] from the frame's scan, as described in the module docstring."""
     scan = np.fromfile(frame / "velodyne" / f"{index}.bin", np.float32).reshape(-1, 4)
@@ -118,20 +74,51 @@ def frame_points(frame: Path, index: str, n: int, seed: int) -> dict[str, np.nda
     }
 
 
-def run_voxel_branch(checkout: Path, inputs: dict[str, np.ndarray], salt: str) -> tuple[dict, dict, str, int]:
-    """the authors' SPVCNN with recipe weights on the inputs: (outputs, state dict shapes, weights sha256, number of
-    parameters)."""
-    sys.path.insert(0, str(checkout))
-    import models.spvnas.models.semantic_kitti.spvcnn as spvcnn  # the authors' module, from the checkout
+Recorder = dict[str, torch.Tensor]
 
-    branch = spvcnn.SPVCNN(num_classes=128, cr=0.5, pres=0.05, vres=0.05)
-    shapes = {f"voxel_branch.{k}": list(v.shape) for k, v in branch.state_dict().items()}
-    state, digest = recipe_state(shapes, salt)
-    branch.load_state_dict({k.removeprefix("voxel_branch."): v for k, v in state.items()})
-    branch.eval()
-    out: dict[str, torch.Tensor] = {}
-    reads = []
-    to_point = spvcnn.voxel_to_point
+
+def hook(module: torch.nn.Module, out: Recorder, name: str, pick) -> torch.utils.hooks.RemovableHandle:
+    """record `pick(output)` of `module` under `name` each time it runs."""
+    return module.register_forward_hook(lambda m, i, o: out.__setitem__(name, pick(o).clone()))
+
+
+def image_branch(branch: torch.nn.Module, inputs: dict[str, np.ndarray]) -> Recorder:
+    """the authors' Image_ResNet on the image: global, s32 and the three upsampling stages."""
+    out: Recorder = {}
+    handles = [hook(m, out, n, lambda o: o[0]) for n, m in (("f16", branch.up_conv1), ("f8", branch.up_conv2))]
+    handles += [hook(branch.up_conv3, out, "mid", lambda o: o[0]), hook(branch.encoder, out, "s32", lambda o: o[-2][0])]
+    with torch.no_grad():
+        out["global"] = branch(torch.from_numpy(inputs["img"]).unsqueeze(0))[0][0]
+    for handle in handles:
+        handle.remove()
+    return out
+
+
+def point_branch(branch: torch.nn.Module, inputs: dict[str, np.ndarray]) -> Recorder:
+    """the authors' PointsEncoder_pointwise (is_pc_norm False) on the cloud: centres, each transformer's output."""
+    out: Recorder = {}
+    handles = [
+        hook(m, out, n, lambda o: o[0])
+        for n, m in (
+            ("l1_down", branch.transformer_start_1), ("l2_down", branch.transformer_start_2),
+            ("l2_up", branch.transformer_end_2), ("l1_up", branch.transformer_end_1),
+        )
+    ]  # fmt: skip
+    handles += [
+        hook(m, out, n, lambda o: o[0][0]) for n, m in (("l1_xyz", branch.sa_module_1), ("l2_xyz", branch.sa_module_2))
+    ]
+    with torch.no_grad():
+        global_feat, pointwise = branch(torch.from_numpy(np.concatenate([inputs[k] for k in CLOUD])).unsqueeze(0))
+    out["global"], out["pointwise"] = global_feat[0], pointwise[0]
+    for handle in handles:
+        handle.remove()
+    return out
+
+
+def voxel_branch(spvcnn, branch: torch.nn.Module, inputs: dict[str, np.ndarray]) -> Recorder:
+    """the authors' SPVCNN fed as triplet_network.py feeds it: the stem, encoder, decoder halves, trilinear reads."""
+    out: Recorder = {}
+    reads, to_point = [], spvcnn.voxel_to_point
 
     def recorded(x, z, nearest=False):
         result = to_point(x, z, nearest)
@@ -139,20 +126,62 @@ def run_voxel_branch(checkout: Path, inputs: dict[str, np.ndarray], salt: str) -
         return result
 
     spvcnn.voxel_to_point = recorded
-    for name, module in (("x0", branch.stem), ("x4", branch.stage4), ("y2", branch.up2[1]), ("y4", branch.up4[1])):
-        module.register_forward_hook(lambda m, i, o, name=name: out.__setitem__(name, o.F.clone()))
-    pc = torch.from_numpy(inputs["pc"]).unsqueeze(0)
-    intensity, sn = torch.from_numpy(inputs["intensity"]).unsqueeze(0), torch.from_numpy(inputs["sn"]).unsqueeze(0)
+    stages = (("x0", branch.stem), ("x4", branch.stage4), ("y2", branch.up2[1]), ("y4", branch.up4[1]))
+    handles = [hook(m, out, n, lambda o: o.F) for n, m in stages]
+    pc, intensity, sn = (torch.from_numpy(inputs[k]).unsqueeze(0) for k in CLOUD)
     feats = torch.cat((pc, intensity, sn), dim=1).transpose(2, 1).reshape(-1, 7)  # triplet_network.py's math
     corrds = pc.transpose(2, 1) - torch.min(pc.transpose(2, 1), dim=1, keepdim=True)[0]
     corrds = torch.round(corrds.reshape(-1, 3) / 0.05)
     corrds = torch.cat((corrds, torch.zeros(len(corrds), 1)), dim=-1)
     with torch.no_grad():
         global_feat, pointwise = branch(feats, corrds, 1)
+    spvcnn.voxel_to_point = to_point
+    for handle in handles:
+        handle.remove()
     out.update({f"devox{i}": r for i, r in enumerate(reads)})
     out["pointwise"], out["global"] = pointwise[0], global_feat[0]
-    parameters = sum(p.numel() for p in branch.parameters())
-    return {f"voxel_branch.{k}": v.numpy() for k, v in out.items()}, shapes, digest, parameters
+    return out
+
+
+def whole_network(net: torch.nn.Module, inputs: dict[str, np.ndarray]) -> Recorder:
+    """VP2PMatchNet.forward, its `.cuda()` (the batch indices) a no-op on this CPU."""
+    tensors = [torch.from_numpy(inputs[k]).unsqueeze(0) for k in (*CLOUD, "img")]
+    cuda, torch.Tensor.cuda = torch.Tensor.cuda, lambda self, *args, **kwargs: self
+    try:
+        with torch.no_grad():
+            pixel_feat, point_feat, img_score, pc_score = net(*tensors)
+    finally:
+        torch.Tensor.cuda = cuda
+    return {
+        "pixel_feat": pixel_feat[0],
+        "point_feat": point_feat[0],
+        "img_score": img_score[0],
+        "pc_score": pc_score[0],
+    }
+
+
+def run_network(checkout: Path, inputs: dict[str, np.ndarray], salt: str) -> tuple[dict, dict, str, dict]:
+    """the authors' VP2PMatchNet with recipe weights: (outputs, state dict shapes, weights sha256, parameters)."""
+    load_sibling("pointnet2_cpu").install()
+    sys.path.insert(0, str(checkout))
+    import models.spvnas.models.semantic_kitti.spvcnn as spvcnn  # the authors' modules, from the checkout
+    from models.triplet_network import VP2PMatchNet
+    from utils.options import Options
+
+    net = VP2PMatchNet(Options())
+    shapes = {k: list(v.shape) for k, v in net.state_dict().items()}
+    state, digest = recipe_state(shapes, salt)
+    net.load_state_dict(state)
+    net.eval()
+    parts = {
+        "image_branch": (net.resnet, image_branch(net.resnet, inputs)),
+        "point_branch": (net.point_transformer, point_branch(net.point_transformer, inputs)),
+        "voxel_branch": (net.voxel_branch, voxel_branch(spvcnn, net.voxel_branch, inputs)),
+        "network": (net, whole_network(net, inputs)),
+    }
+    outputs = {f"{part}.{k}": v.numpy() for part, (_, out) in parts.items() for k, v in out.items()}
+    parameters = {part: sum(p.numel() for p in module.parameters()) for part, (module, _) in parts.items()}
+    return outputs, shapes, digest, parameters
 
 
 def main() -> None:
@@ -170,13 +199,7 @@ def main() -> None:
     load_sibling("sparse").add_cpu_stand_ins()
     inputs = frame_points(args.frame, args.frame_index, args.n, args.seed)
     inputs["img"] = frame_image(args.frame, args.frame_index, tuple(args.image_size))
-    outputs, shapes, digest, parameters = run_voxel_branch(args.checkout, inputs, args.salt)
-    image_outputs, image_shapes, _, image_parameters = run_image_branch(inputs, args.salt)
-    point_outputs, point_shapes, _, point_parameters = run_point_branch(inputs, args.salt)
-    outputs.update(image_outputs)
-    outputs.update(point_outputs)
-    shapes = {**point_shapes, **shapes, **image_shapes}  # VP2PMatchNet's order: point, voxel, image branches
-    _, digest = recipe_state(shapes, args.salt)
+    outputs, shapes, digest, parameters = run_network(args.checkout, inputs, args.salt)
     args.out.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(args.out / "inputs.npz", **inputs)
     np.savez_compressed(args.out / "outputs.npz", **outputs)
@@ -189,9 +212,9 @@ def main() -> None:
         "seed": args.seed,
         "salt": args.salt,
         "checkout": "junshengzhou/VP2P-Match be76104",
-        "modules": ["image_branch", "point_branch", "voxel_branch"],
+        "modules": ["image_branch", "point_branch", "voxel_branch", "network"],
         "image_size": list(args.image_size),
-        "parameters": {"image_branch": image_parameters, "point_branch": point_parameters, "voxel_branch": parameters},
+        "parameters": parameters,
     }
     (args.out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
 

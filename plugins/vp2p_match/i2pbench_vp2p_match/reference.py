@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from .official.image import ImageResNet
+from .official.network import VP2PMatchNet
 from .official.points import PointsEncoder
 from .official.spvcnn import SPVCNN, voxel_coordinates
 
@@ -92,3 +93,12 @@ def voxel_branch_forward(state: dict[str, torch.Tensor], inputs: dict[str, np.nd
         global_feat, pointwise = branch(feats, coords, 1)
     trace["pointwise"], trace["global"] = pointwise[0], global_feat[0]
     return {prefix + k: v.numpy() for k, v in trace.items()}
+
+
+def network_forward(state: dict[str, torch.Tensor], inputs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """the whole official network with the whole state dict (strictly): the folder's `network.*`."""
+    net = loaded(VP2PMatchNet(), state, "")
+    tensors = [torch.from_numpy(inputs[k]).unsqueeze(0) for k in ("pc", "intensity", "sn", "img")]
+    with torch.no_grad():
+        trace = net.trace(*tensors)
+    return {f"network.{k}": v[0].numpy() for k, v in trace.items()}
