@@ -16,7 +16,9 @@ results keep their identity and cache keys.
 A protocol card other than the default (i2pbench.scoring.cards) may give its stages other inputs than the dataset's
 frame: an image cut, resized and cropped (K alike), a voxel grid and a sampled point count (protocol_inputs), and a
 T_rand drawn in the camera frame, the cloud first taken there (T_gt = inv(T_rand), T_init = I). Each such field
-stays off the card at its default, so the default card's identity never moved.
+stays off the card at its default, so the default card's identity never moved. A frame of a
+dataset with the peers' dataset index (`draw_index`: KITTI and its CorrI2P layout) is built under the corri2p and
+cofii2p cards as those papers' loaders build it instead (protocol_peer).
 """
 
 from __future__ import annotations
@@ -154,6 +156,11 @@ class Protocol:
         if not np.isfinite(sensor.points).all():
             where = sensor.source or f"{sensor.dataset} frame {sensor.frame_id}"
             raise DataError(f"{where}: the scan contains NaN or infinite values; datasets must drop such returns")
+        if sensor.draw_index is not None:
+            from .protocol_peer import follows_loader, peer_frame  # as the peers' loaders build it
+
+            if follows_loader(self, sensor):
+                return peer_frame(self, sensor)
         seen, K_true = self.corrupt(sensor), sensor.K
         if self.resamples():
             seen, K_true = self.resample(seen, K_true)

@@ -30,6 +30,11 @@ class SensorFrame:
     # [6] float64 (vx, vy, vz in m/s, wx, wy, wz in rad/s): the LiDAR's own velocity, in its frame, at the scan's
     # time; None when the dataset does not know it (corruptions needing it do not apply: docs/robustness.md)
     ego_motion: np.ndarray | None = None
+    # the frame's index in the list the peers' loaders build over its split (KITTI: 2 x its position, + 1 for camera
+    # 3): under the corri2p and cofii2p cards the protocol builds the frame as their loader does for that index
+    # (i2pbench.protocol_peer); None: the card's own resampling (protocol_inputs)
+    draw_index: int | None = None
+    preprocessed: bool = False  # the points are already the peers' preprocessed cloud (0.1 m grid, 1-NN reflectance)
 
     @property
     def image_size(self) -> tuple[int, int]:

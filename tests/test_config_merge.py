@@ -11,14 +11,15 @@ from i2pbench.plugins import default_registry
 from i2pbench.runs.jobs import _described
 from i2pbench.runs.store import cache_key
 
-# (kind, name, overrides) -> the cache key of the stage's description, computed before the deep merge existed
+# (kind, name, overrides) -> the cache key of the stage's description, computed before the deep merge existed (the
+# two PointNet++ encoders' recomputed when layers.pointnet2 and layers.kernels went to REVISION 1, issue 39)
 KEYS = [
     ("extractor2d", "lsd", None, "a5ddd8ab6ed036d039c1b670"),
     ("extractor3d", "depth", None, "48470a80705c9ce928a05704"),
     ("matcher", "oracle", None, "91b609ed9b253d311cbbf2ec"),
     ("solver", "epnp-ransac", {"reprojection_error_px": 4.0}, "c8ef59e52049a0f806f85855"),
-    ("encoder3d", "pointnet2", {"sa1": {"radius": 0.2}}, "f27c948966283c88f3fa9259"),
-    ("encoder3d", "corri2p-pointnet2", {"sa2": {"nsample": 8}, "num_points": 1024}, "5e5c2967371a9d013a6f8400"),
+    ("encoder3d", "pointnet2", {"sa1": {"radius": 0.2}}, "b4b3bc3d727898e8927cace8"),
+    ("encoder3d", "corri2p-pointnet2", {"sa2": {"nsample": 8}, "num_points": 1024}, "ac74c41eb54c98f1871db2fd"),
     ("matcher", "lightglue", {"weights": {"fov": 2.0}}, "4f026e7b05bf0444ec0b58ed"),
 ]
 

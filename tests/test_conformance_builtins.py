@@ -29,6 +29,9 @@ SMALL_CONFS = {
     },
     ("exchanger", "attention"): {"descriptor_dim": 32, "num_blocks": 1, "num_heads": 2, "pe_mlp": (16, 32)},
     ("matcher", "lightglue"): {"descriptor_dim": 32},
+    # CorrI2P's authors' crop scaled to the kit's 160 x 96 frame (their 512 x 160 needs a KITTI-size image), 16 nodes
+    ("extractor2d", "corri2p-official-grid"): {"crop": (64, 32), "top_rows": 0},
+    ("matcher", "corri2p-official"): {"crop": (64, 32), "top_rows": 0, "nodes": 16},
 }
 
 COMPONENTS = sorted((kind, name) for kind, table in default_registry().components.items() for name in table)

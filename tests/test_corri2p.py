@@ -80,17 +80,28 @@ def features_of(stages, frame, kp2d, kp3d) -> Features:
 
 
 COMPONENTS = registered_components(corri2p_plugin)
+# the official size's stages (tests/test_corri2p_official.py): the authors' crop scaled to the kit's small frame
+OFFICIAL_TINY = {
+    "corri2p-official-grid": {"crop": (64, 32), "top_rows": 0},
+    "corri2p-official-points": {"max_keypoints": 1024},
+    "corri2p-official": {"crop": (64, 32), "top_rows": 0, "nodes": 16},
+}
 
 
 @pytest.mark.parametrize("cls", COMPONENTS, ids=lambda c: c.name)
 @pytest.mark.parametrize("size", ["paper", "tiny"])
 def test_every_component_conforms(cls, size):
-    report = check_component(cls, TINY[cls.kind] if size == "tiny" else None)
+    tiny = OFFICIAL_TINY[cls.name] if cls.name in OFFICIAL_TINY else TINY[cls.kind]
+    report = check_component(cls, tiny if size == "tiny" else None)
     assert not list(report), str(report)
 
 
 def test_the_plugin_registers_one_component_per_learned_stage():
-    assert [(c.kind, c.name) for c in COMPONENTS] == list(configs.COMPONENTS.items())
+    official = {"extractor2d": "corri2p-official-grid", "extractor3d": "corri2p-official-points"}
+    official["matcher"] = "corri2p-official"
+    found = [(c.kind, c.name) for c in COMPONENTS]
+    assert [c for c in found if c[1] not in OFFICIAL_TINY] == list(configs.COMPONENTS.items())
+    assert sorted(c for c in found if c[1] in OFFICIAL_TINY) == sorted(official.items())
 
 
 # --- labels, worked by hand
@@ -430,13 +441,13 @@ def test_the_method_declares_its_sizes_and_presets(monkeypatch):
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "classic,corri2p")
     registry = build_registry(strict=True)
     method = registry.method("corri2p")
-    assert [s.name for s in method.sizes] == ["paper", "cpu-size"]
+    assert [s.name for s in method.sizes] == ["paper", "cpu-size", "official"]
     assert [w.name for w in method.weights] == ["corri2p-cpu-synthetic.pt"]  # the shipped CPU-size checkpoint
     cpu, paper = (expand(base_combinations(registry, p), {}, None, registry)[0] for p in ("corri2p", "corri2p-paper"))
     auto = [job.weights for job in prepare(registry, [cpu, paper])]
     assert auto[0].startswith("corri2p-cpu-synthetic@") and auto[1] == "untrained"  # --weights auto, by size
     owned = {name for name, preset in registry.presets.items() if preset.method == "corri2p"}
-    assert owned == {"corri2p", "corri2p-paper", "corri2p-ablation"}
+    assert owned == {"corri2p", "corri2p-paper", "corri2p-official", "corri2p-ablation"}
     (row,) = registry.presets["corri2p"].combinations
     assert row["variant"] == "cpu-size" and row["encoder2d"] == "corri2p-resnet"
     assert row["confs"]["extractor2d"] == {"stride": 16, "max_keypoints": configs.CPU_PIXELS}

@@ -63,6 +63,7 @@ def test_the_paper_table_lists_the_seed_papers_methods_in_table_1_order():
         "deepi2p (deepi2p-frustum-3d)",
         "deepi2p (deepi2p-frustum-2d)",
         "corri2p",
+        "corri2p (corri2p-official)",
         "edgeregnet (default)",
         "classic-oracle",
     ]

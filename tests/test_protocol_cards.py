@@ -147,7 +147,7 @@ def test_the_default_card_is_the_protocol_every_stored_result_was_made_under():
     assert installed.find("edgeregnet").protocol().identity() == "71a877f2ef9c7dc4"
     assert installed.find("edgeregnet").protocol(seed=3) == Protocol(seed=3)
     corri2p = installed.find("corri2p").protocol()
-    assert corri2p.card()["name"] == "corri2p" and corri2p.card()["version"] == 1
+    assert corri2p.card()["name"] == "corri2p" and corri2p.card()["version"] == 2
     assert corri2p.identity() != Protocol().identity()
     assert Protocol(**corri2p.card()) == corri2p  # read back from an invocation record
 

@@ -55,7 +55,7 @@ def test_a_run_under_corri2p_is_scored_by_every_card_sharing_its_inputs(shared_d
     records = ResultsStore(runs / "kitti-all").load()
     assert set(records["protocol"]) == {installed.find("corri2p").protocol(0, "kitti").identity()}
     board = leaderboard.read(runs / "leaderboards" / "kitti-all-canny-depth-oracle-epnp-ransac-corri2p.csv")
-    assert board["protocol"].tolist() == ["corri2p v1"] and board[leaderboard.ACC].tolist() == [100.0]  # oracle
+    assert board["protocol"].tolist() == ["corri2p v2"] and board[leaderboard.ACC].tolist() == [100.0]  # oracle
     assert main(["evaluate", str(runs / "kitti-all"), "--out", str(tmp_path / "again")]) == 0  # the card's rules
     again = leaderboard.read(tmp_path / "again.csv")
     for column in (leaderboard.ACC, leaderboard.RTE, leaderboard.RRE, "protocol", "recall RRE<1° (%)", "RRE p90 (°)"):

@@ -1,13 +1,16 @@
 """`i2pbench data`: dataset utilities.
 
 `synth` generates the embedded synthetic dataset (KITTI Odometry layout) ahead of time; `nuscenes-dataroot` turns
-nuScenes record folders (as in shared/data) into a devkit dataroot that `--dataset nuscenes` reads.
+nuScenes record folders (as in shared/data) into a devkit dataroot that `--dataset nuscenes` reads; `export` writes
+a preprocessed layout the field shares (commands/data_export.py).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+
+from . import data_export
 
 
 def frame_count(text: str) -> int:
@@ -43,11 +46,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     nus.add_argument("--out", required=True, metavar="ROOT", help="dataroot to write; its version folder must be new")
     nus.add_argument("--version", default="v1.0-trainval", help="table folder to write (v1.0-test for test scenes)")
     nus.add_argument("--copy", action="store_true", help="copy the sensor files instead of linking them")
+    data_export.add_parser(data_sub)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.data_command == "nuscenes-dataroot":
         return nuscenes_dataroot(args)
+    if args.data_command == "export":
+        return data_export.run(args)
     from ..data.synthetic.dataset import SyntheticStreets, generate
     from ..errors import I2PBenchError, os_problem
 

@@ -8,6 +8,7 @@ LiDAR's ego motion (`SensorFrame.ego_motion`), from its neighbours' poses; witho
 
 from __future__ import annotations
 
+import dataclasses
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, ClassVar
@@ -239,6 +240,7 @@ class KittiOdometry(Dataset):
         if self.conf["camera"] not in (2, 3):
             raise DataError(f"dataset 'kitti': camera must be 2 or 3, got {self.conf['camera']!r}")
         self._ids: list[str] | None = None
+        self._index: dict[str, int] | None = None
 
     @property
     def sequences_dir(self) -> Path:
@@ -275,7 +277,16 @@ class KittiOdometry(Dataset):
         sequence, sep, stem = frame_id.partition("/")
         if not sep or not sequence or not stem:
             raise DataError(f"dataset 'kitti': frame id {frame_id!r} is not of the form 'NN/NNNNNN'")
-        return read_frame(self.sequences_dir / sequence, stem, self.conf["camera"], self.name, self.match_radius_px)
+        frame = read_frame(self.sequences_dir / sequence, stem, self.conf["camera"], self.name, self.match_radius_px)
+        return dataclasses.replace(frame, draw_index=self.draw_index(frame_id))
+
+    def draw_index(self, frame_id: str) -> int | None:
+        """The frame's index in the peers' loaders' list over this split (2 x its position, + 1 for camera 3), for
+        the cards that follow their loaders (i2pbench.protocol_peer); None for a frame outside the split."""
+        if self._index is None:
+            camera3 = self.conf["camera"] == 3
+            self._index = {frame: 2 * i + camera3 for i, frame in enumerate(self.frame_ids())}
+        return self._index.get(frame_id)
 
     def identity(self) -> dict[str, Any]:
         return {**super().identity(), "camera": self.conf["camera"], "sequences": self.conf["sequences"]}

@@ -27,6 +27,7 @@ def register_datasets(register) -> None:
     register("i2pbench.data.kitti:KittiOdometry", name="kitti")
     register("i2pbench.data.kitti_drives:KittiDrives", name="kitti-drives")
     register("i2pbench.data.nuscenes:NuScenes", name="nuscenes")
+    register("i2pbench.data.corri2p_kitti:Corri2PKitti", name="corri2p-kitti")
     register("i2pbench.data.synthetic:SyntheticStreets", name="synthetic")
 
 

@@ -15,22 +15,25 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-REVISION = 0  # bump when an output of this module changes for the same inputs (see i2pbench.layers)
+REVISION = 1  # bump when an output of this module changes for the same inputs (see i2pbench.layers)
 
 
-@numba.njit(cache=True, nogil=True, fastmath={"contract"})
+@numba.njit(cache=True, nogil=True)
 def _fps(x: np.ndarray, y: np.ndarray, z: np.ndarray, n: int, start: int, out: np.ndarray) -> None:
-    """the reference's loop, point by point: same float32 squares and sums, first maximum on ties."""
+    """the reference's loop, point by point: same float32 squares and sums, first maximum on ties.
+
+    No fused multiply-add (no `fastmath`): each square is rounded, then summed x + y, then + z, as the PointNet++
+    code the official sizes follow computes `sum((xyz - centroid) ** 2, -1)`; a fused sum rounds differently and
+    can turn their strict maximum into a tie (or back), which moves a centroid."""
     dist = np.full(x.shape[0], np.inf, dtype=np.float32)
     far = start
     for i in range(n):
         out[i] = far
         cx, cy, cz = x[far], y[far], z[far]
         for j in range(x.shape[0]):
-            dy, dz = y[j] - cy, z[j] - cz
-            d = (x[j] - cx) * (x[j] - cx)
-            d = dy * dy + d  # fused multiply-adds where the CPU has them, as torch's vectorised addcmul
-            d = dz * dz + d
+            dx, dy, dz = x[j] - cx, y[j] - cy, z[j] - cz
+            d = dx * dx + dy * dy
+            d = d + dz * dz
             dist[j] = min(dist[j], d)
         far = np.argmax(dist)
 

@@ -20,7 +20,7 @@ from ..types import Frame
 from . import kernels
 from .canonical import canonical_yaw
 
-REVISION = 0  # bump when an output of this module changes for the same inputs (see i2pbench.layers)
+REVISION = 1  # bump when an output of this module changes for the same inputs (see i2pbench.layers)
 
 
 def compiled(*tensors: torch.Tensor) -> bool:
@@ -40,8 +40,11 @@ def farthest_point_sampling(xyz: torch.Tensor, n: int, start: int = 0) -> torch.
 def farthest_point_sampling_torch(xyz: torch.Tensor, n: int, start: int = 0) -> torch.Tensor:
     """the reference `farthest_point_sampling` in torch ops, and the path for GPU tensors.
 
-    Batched over frames and free of host syncs (the chosen point is gathered by a device index, never `.item()`), so
-    on CUDA the loop only queues kernels. With n > N the indices repeat `start` once every point is taken.
+    The arithmetic is that of the PointNet++ code the official sizes follow (`torch.max` over
+    `sum((xyz - centroid) ** 2, -1)`): each square rounded to float32, summed x + y, then + z, and the first index
+    at an exact tie. Batched over frames and free of host syncs (the chosen point is gathered by a device index,
+    never `.item()`), so on CUDA the loop only queues kernels. With n > N the indices repeat `start` once every
+    point is taken.
     """
     batch, num, _ = xyz.shape
     index = torch.empty(batch, n, dtype=torch.long, device=xyz.device)
@@ -54,8 +57,8 @@ def farthest_point_sampling_torch(xyz: torch.Tensor, n: int, start: int = 0) -> 
         index[:, i] = farthest
         cx, cy, cz = x[rows, farthest, None], y[rows, farthest, None], z[rows, farthest, None]
         torch.sub(x, cx, out=d).square_()
-        d.addcmul_(torch.sub(y, cy, out=t), t)
-        d.addcmul_(torch.sub(z, cz, out=t), t)
+        d.add_(torch.sub(y, cy, out=t).square_())  # squares rounded, then summed x + y + z: no fused multiply-add
+        d.add_(torch.sub(z, cz, out=t).square_())
         torch.minimum(dist, d, out=dist)
         farthest = torch.argmax(dist, dim=1)
     return index

@@ -13,13 +13,18 @@ import io
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
-from matplotlib.ticker import FuncFormatter
+from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
 from ..boards.leaderboard import LATENCY_MEDIAN, stage_latency
 from ..components import STAGE_ORDER
 from ..protocol import Protocol
+from .labels import chars_in, line_count, number, tick, wrapped
 
 ROW = ["combination", "weights"]  # one curve per leaderboard row of a dataset split
+FIGURE_IN = 11.0  # every figure's width: the page's 1360 px column at 100 dpi, less its margins
+LATENCY_LABEL_CHARS = 44  # a row's name beside the latency bars wraps here, leaving the bars ~3/4 of the width
+BAR_SHARE = 0.75  # the slowest bar spans this share of the log axis; its value is written in the rest
+TICKS = 7  # at most this many labelled decades on a log axis (more would crowd "1,000,000" into its neighbours)
 
 
 def row_label(combination: str, weights: str) -> str:
@@ -59,21 +64,28 @@ def _axes(fig: Figure, titles: tuple[str, str], xlabels: tuple[str, str], ylabel
 
 
 def _legend(fig: Figure, axes) -> None:
+    """Below both panels, one entry per row (names wrapped to the figure's width by `_legend_labels`)."""
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside lower center", ncol=1, fontsize=8, frameon=False)
 
 
-def _figure(n_rows: int) -> Figure:
-    """Two panels side by side, taller by one legend line per row (the legend goes below both)."""
-    return Figure(figsize=(11, 3.8 + 0.2 * n_rows), layout="constrained")
+def _figure(labels: list[str]) -> Figure:
+    """Two panels side by side, taller by each legend line (the legend goes below both)."""
+    lines = sum(line_count(label) for label in labels)
+    return Figure(figsize=(FIGURE_IN, 3.8 + 0.17 * lines + 0.05 * len(labels)), layout="constrained")
+
+
+def _legend_labels(groups: list[tuple[str, pd.DataFrame]]) -> list[str]:
+    return [wrapped(label, chars_in(FIGURE_IN - 0.5)) for label, _ in groups]
 
 
 def cumulative_errors(groups: list[tuple[str, pd.DataFrame]], protocol: Protocol) -> Figure:
     """% of frames under each RTE and RRE value (log axes), the protocol's thresholds dashed."""
-    fig = _figure(len(groups))
+    names = _legend_labels(groups)
+    fig = _figure(names)
     axes = _axes(fig, ("Cumulative RTE", "Cumulative RRE"), ("RTE (m)", "RRE (°)"), "frames (%)")
     grids = (np.logspace(-3, 2, 400), np.logspace(-2, np.log10(360), 400))
-    for label, group in groups:
+    for label, (_, group) in zip(names, groups, strict=True):
         for ax, column, grid in zip(axes, ("rte_m", "rre_deg"), grids, strict=True):
             ax.plot(grid, cumulative_pct(group[column], grid), label=label)
     for ax, threshold, grid in zip(axes, (protocol.acc_rte_m, protocol.acc_rre_deg), grids, strict=True):
@@ -86,7 +98,8 @@ def cumulative_errors(groups: list[tuple[str, pd.DataFrame]], protocol: Protocol
 
 def accuracy_curves(groups: list[tuple[str, pd.DataFrame]], protocol: Protocol) -> Figure:
     """Acc. against the RRE threshold at the protocol's RTE threshold, and against the RTE threshold at its RRE one."""
-    fig = _figure(len(groups))
+    names = _legend_labels(groups)
+    fig = _figure(names)
     axes = _axes(
         fig,
         (
@@ -98,7 +111,7 @@ def accuracy_curves(groups: list[tuple[str, pd.DataFrame]], protocol: Protocol) 
     )
     rre_grid = np.linspace(0, 4 * protocol.acc_rre_deg, 200)
     rte_grid = np.linspace(0, 4 * protocol.acc_rte_m, 200)
-    for label, g in groups:
+    for label, (_, g) in zip(names, groups, strict=True):
         axes[0].plot(rre_grid, accuracy_pct(g["rte_m"], g["rre_deg"], protocol.acc_rte_m, rre_grid), label=label)
         axes[1].plot(rte_grid, accuracy_pct(g["rte_m"], g["rre_deg"], rte_grid, protocol.acc_rre_deg), label=label)
     for ax, threshold in zip(axes, (protocol.acc_rre_deg, protocol.acc_rte_m), strict=True):
@@ -109,36 +122,56 @@ def accuracy_curves(groups: list[tuple[str, pd.DataFrame]], protocol: Protocol) 
 
 def latency_bars(board: pd.DataFrame, labels: list[str] | None = None) -> Figure:
     """Left: median milliseconds per frame per leaderboard row on a log axis, so a 20 ms row stays visible beside
-    a 2 s one. Right: each stage's share of the row's summed stage medians (a stage absent from a row adds none)."""
+    a 2 s one. Right: each stage's share of the row's summed stage medians (a stage absent from a row adds none).
+    Row names are wrapped (the legends of the other figures carry them in full on one line where they fit)."""
     kinds = [k for k in STAGE_ORDER if stage_latency(k, "median") in board]
     labels = labels or [row_label(c, w) for c, w in zip(board["combination"], board["weights"], strict=True)]
-    fig = Figure(figsize=(11, 2.4 + 0.4 * len(board)), layout="constrained")
+    names = [wrapped(label, LATENCY_LABEL_CHARS) for label in labels]
+    lines = sum(line_count(name) for name in names)
+    fig = Figure(figsize=(FIGURE_IN, 1.9 + 0.15 * lines + 0.22 * len(names)), layout="constrained")
     fig.suptitle("Latency per frame: median total (left), share of each stage (right)")
     total_ax, share_ax = fig.subplots(1, 2, sharey=True, width_ratios=(3, 2))
-    total = board[LATENCY_MEDIAN].to_numpy(float)
-    total = np.where(np.isfinite(total) & (total > 0), total, np.nan)
-    floor = 10.0 ** (np.floor(np.log10(np.nanmin(total))) - 1) if np.isfinite(total).any() else 1.0
-    bars = total_ax.barh(labels, total - floor, left=floor, color="0.45")  # from a decade below the fastest
-    total_ax.bar_label(bars, labels=[f"{v:.3g} ms" if np.isfinite(v) else "-" for v in total], fontsize=8, padding=2)
-    total_ax.set_xscale("log")
-    total_ax.set_xlim(floor, 10.0 ** np.ceil(np.log10(np.nanmax(total) * 3)) if np.isfinite(total).any() else 10.0)
-    total_ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-    total_ax.set(xlabel="median latency per frame (ms, log scale)")
-    total_ax.grid(True, axis="x", which="both", alpha=0.3)
-    total_ax.set_axisbelow(True)
-    stages = np.column_stack([board[stage_latency(k, "median")].fillna(0.0).to_numpy(float) for k in kinds] or [])
-    left = np.zeros(len(board))
-    for i, kind in enumerate(kinds):
-        summed = stages.sum(axis=1)
-        share = np.divide(100.0 * stages[:, i], summed, out=np.zeros(len(board)), where=summed > 0)
-        share_ax.barh(labels, share, left=left, label=kind)
-        left += share
-    share_ax.set(xlabel="share of the summed stage medians (%)", xlim=(0, 100))
-    total_ax.invert_yaxis()  # leaderboard order, top to bottom (the axes share y)
+    _totals(total_ax, board[LATENCY_MEDIAN].to_numpy(float))
+    _shares(share_ax, board, kinds)
+    total_ax.set_yticks(range(len(names)), names)
+    total_ax.set_ylim(len(names) - 0.5, -0.5)  # leaderboard order, top to bottom (the axes share y)
     total_ax.tick_params(axis="y", labelsize=8)
     if kinds:
         fig.legend(fontsize=8, ncol=len(kinds), loc="outside lower center", frameon=False)
     return fig
+
+
+def _totals(ax, total: np.ndarray) -> None:
+    """Bars from a decade below the fastest row, each labelled with its median as the tables write it; the axis
+    runs on past the slowest bar so its label stays inside the panel."""
+    total = np.where(np.isfinite(total) & (total > 0), total, np.nan)
+    timed = bool(np.isfinite(total).any())
+    floor = 10.0 ** (np.floor(np.log10(np.nanmin(total))) - 1) if timed else 1.0
+    top = floor * (np.nanmax(total) / floor) ** (1 / BAR_SHARE) if timed else 10.0
+    bars = ax.barh(range(len(total)), total - floor, left=floor, color="0.45")
+    ax.bar_label(bars, labels=[number(v, "ms") for v in total], fontsize=8, padding=3)
+    ax.set_xscale("log")
+    ax.set_xlim(floor, top)
+    ax.xaxis.set_major_locator(LogLocator(numticks=TICKS))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: tick(v)))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.set(xlabel="median latency per frame (ms, log scale)")
+    ax.grid(True, axis="x", which="both", alpha=0.3)
+    ax.set_axisbelow(True)
+
+
+def _shares(ax, board: pd.DataFrame, kinds: list[str]) -> None:
+    """Each stage's share of the row's summed stage medians, stacked in pipeline order."""
+    ax.set(xlabel="share of the summed stage medians (%)", xlim=(0, 100))
+    if not kinds:
+        return
+    stages = np.column_stack([board[stage_latency(k, "median")].fillna(0.0).to_numpy(float) for k in kinds])
+    summed = stages.sum(axis=1)
+    left = np.zeros(len(board))
+    for i, kind in enumerate(kinds):
+        share = np.divide(100.0 * stages[:, i], summed, out=np.zeros(len(board)), where=summed > 0)
+        ax.barh(range(len(board)), share, left=left, label=kind)
+        left += share
 
 
 def png(fig: Figure, dpi: int = 100) -> bytes:

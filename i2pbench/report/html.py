@@ -2,8 +2,9 @@
 
 Self-contained so it can be mailed, attached to a CI run or opened offline. The only script sorts the leaderboard
 when a header is clicked; each cell carries its raw value in `data-sort`, so "0.03 ± 0.01" sorts by its mean.
-The leaderboard shows the columns a terminal board shows; rows scored on different frames (invocations with other
---frames) go to separate tables, plus one of every row rescored on the frames all of them share.
+The leaderboard shows the columns a terminal board shows, those a reader compares first leading (LEAD); rows scored
+on different frames (invocations with other --frames) go to separate tables, plus one of every row rescored on the
+frames all of them share.
 """
 
 from __future__ import annotations
@@ -18,23 +19,30 @@ import numpy as np
 import pandas as pd
 
 from ..boards import leaderboard as lb
+from ..boards import uncertainty
+from ..metrics import installed as installed_metrics
 from ..scoring.installed import rescored
 from . import curves, framesets, overlay, robustness, sequences
 from .examples import Example, render_examples
+from .labels import number
 from .rundir import RunDir, load_run
 
 EXTRA = ["geodesic median (°) ↓"]  # the report's own column beside the ones a terminal board shows
 IN_TITLE = ("dataset", "split")  # one runs directory holds one dataset split, which the page's title names
 SORT_BY = {lb.RTE: lb.RTE_MEAN, lb.RRE: lb.RRE_MEAN}  # "mean ± std" text columns sort by their mean
+# What a reader compares first, each with its 95% interval after it; the board's other columns follow in its order.
+LEAD = ["combination", "method", "weights", "frames", lb.ACC, lb.ACC_SKILL, lb.RTE, lb.RRE]
+WRAPPED = {"combination": "name", "weights": "weights"}  # long names wrap (after a stage's ">", at a "-")
 
 CSS = """
 body { font: 14px/1.45 system-ui, sans-serif; margin: 24px auto; max-width: 1360px; padding: 0 16px; color: #222; }
 h1 { font-size: 22px; } h2 { font-size: 18px; margin-top: 32px; border-bottom: 1px solid #ddd; }
 table { border-collapse: collapse; font-size: 13px; }
 th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: right; }
-th { background: #f3f3f3; cursor: pointer; user-select: none; white-space: nowrap; }
+th { background: #f3f3f3; cursor: pointer; user-select: none; min-width: 5.5em; vertical-align: bottom; }
 th[aria-sort=ascending]::after { content: " ▲"; } th[aria-sort=descending]::after { content: " ▼"; }
 td { white-space: nowrap; } td.text { text-align: left; }
+td.name { white-space: normal; min-width: 12em; max-width: 22em; } td.weights { white-space: normal; max-width: 13em; }
 h3 { font-size: 15px; margin: 20px 0 6px; } .wide { overflow-x: auto; max-width: 100%; }
 img { max-width: 100%; display: block; margin: 8px 0; }
 figure { margin: 16px 0; } figcaption { font-weight: 600; }
@@ -111,7 +119,7 @@ def render(
             "Dashed: the protocol's thresholds, where each curve meets Acc.",
             _png(curves.accuracy_curves(groups, run.protocol), "Acc. against the RRE and RTE thresholds"),
         ),
-        _section("By sequence", sequences.EXPLAIN, table(sequences.table(run.records, run.protocol, labels))),
+        _section("By sequence", sequences.EXPLAIN, _by_sequence(run, list(labels))),
         _section(
             "Latency",
             "Median per frame over the frames whose pipeline ran to the end (log axis), and each stage's share.",
@@ -134,7 +142,14 @@ def board_columns(board: pd.DataFrame) -> list[str]:
     header = lb.to_markdown(board).splitlines()[0]
     shown = [c.strip() for c in header.strip().strip("|").split(" | ")]
     shown = [c for c in shown if c in board and (c not in IN_TITLE or board[c].nunique() > 1)]
-    return shown + [c for c in EXTRA if c in board and c not in shown]
+    return _lead_first(shown + [c for c in EXTRA if c in board and c not in shown])
+
+
+def _lead_first(columns: list[str]) -> list[str]:
+    """LEAD's columns among `columns`, each followed by its interval, then the others in their order."""
+    interval = {m.summary or m.column: uncertainty.ci(m) for m in uncertainty.with_interval(installed_metrics.active())}
+    lead = [name for column in LEAD for name in (column, interval.get(column)) if name in columns]
+    return lead + [c for c in columns if c not in lead]
 
 
 def table(board: pd.DataFrame, columns: list[str] | None = None) -> str:
@@ -143,7 +158,7 @@ def table(board: pd.DataFrame, columns: list[str] | None = None) -> str:
     head = "".join(f"<th>{escape(c)}</th>" for c in columns)
     text = {c for c in columns if not pd.api.types.is_numeric_dtype(board[c]) and c not in SORT_BY}  # words: left
     body = "".join(
-        "<tr>" + "".join(_cell(row[c], row.get(SORT_BY.get(c, c)), c in text) for c in columns) + "</tr>\n"
+        "<tr>" + "".join(_cell(row[c], row.get(SORT_BY.get(c, c)), _kind(c, text)) for c in columns) + "</tr>\n"
         for _, row in board.iterrows()
     )
     table = f'<table class="sortable"><thead><tr>{head}</tr></thead><tbody>\n{body}</tbody></table>'
@@ -178,15 +193,26 @@ def _labels(board: pd.DataFrame, records: pd.DataFrame, sets: list[framesets.Fra
     return {key: curves.row_label(*key) + suffix(key) for key in keys}
 
 
-def _cell(value: object, sort_value: object, text: bool = False) -> str:
-    kind = " class=text" if text else ""
+def _by_sequence(run: RunDir, order: list[tuple[str, str]]) -> str:
+    lines = sequences.table(run.records, run.protocol, order)
+    return table(lines, list(lines.columns))
+
+
+def _kind(column: str, text: set[str]) -> str:
+    """The cell's class: words align left, and a combination's or weights' name may wrap, so that the columns
+    after them stay in view."""
+    classes = (["text"] if column in text else []) + ([WRAPPED[column]] if column in WRAPPED else [])
+    return " ".join(classes)
+
+
+def _cell(value: object, sort_value: object, kind: str = "") -> str:
+    kind = f' class="{kind}"' if kind else ""
     return f'<td{kind} data-sort="{escape(_sort_text(sort_value))}">{escape(_display(value))}</td>'
 
 
 def _display(value: object) -> str:
-    if isinstance(value, float | np.floating):
-        return "-" if np.isnan(value) else f"{value:.2f}"
-    return str(value)
+    """Floats as the figures write them (two decimals, grouped thousands), NaN as "-"."""
+    return number(float(value)) if isinstance(value, float | np.floating) else str(value)
 
 
 def _sort_text(value: object) -> str:

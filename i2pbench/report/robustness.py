@@ -31,6 +31,7 @@ from ..types import Frame, SensorFrame
 from . import draw, overlay
 from .curves import png, row_label
 from .examples import Example, jpeg
+from .labels import chars_in, line_count, wrapped
 from .rundir import RunDir, open_dataset, pose
 
 PANEL_PX = 620  # widest overlay panel: four severities of a 1241 px KITTI frame side by side stay ~2500 px wide
@@ -162,7 +163,10 @@ def severity_figure(found: list[Curve], kinds: dict[str, str]) -> Figure:
     labels = list(dict.fromkeys(c.label for c in found))
     n_cols = min(PANELS_PER_ROW, len(names))
     n_rows = math.ceil(len(names) / n_cols)
-    fig = Figure(figsize=(3.2 * n_cols, 2.6 * n_rows + 0.25 * len(labels) + 0.3), layout="constrained")
+    width = 3.2 * n_cols
+    shown = [wrapped(label, chars_in(width - 0.3)) for label in labels]  # narrow with one corruption: wrap
+    lines = sum(line_count(label) for label in shown)
+    fig = Figure(figsize=(width, 2.6 * n_rows + 0.17 * lines + 0.08 * len(labels) + 0.3), layout="constrained")
     axes = np.atleast_1d(fig.subplots(n_rows, n_cols, sharey=True, squeeze=False)).ravel()
     top = max((max(c.severities) for c in found if c.severities), default=1)
     for i, (ax, name) in enumerate(zip(axes, names, strict=False)):
@@ -175,7 +179,7 @@ def severity_figure(found: list[Curve], kinds: dict[str, str]) -> Figure:
             _plot(ax, curve, labels.index(curve.label))
     for ax in axes[len(names) :]:
         ax.set_visible(False)
-    handles = [_style(Line2D([], []), i, label) for i, label in enumerate(labels)]
+    handles = [_style(Line2D([], []), i, label) for i, label in enumerate(shown)]
     fig.legend(handles=handles, loc="outside lower center", ncol=1, fontsize=8, frameon=False)
     return fig
 

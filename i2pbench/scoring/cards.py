@@ -151,13 +151,18 @@ EDGEREGNET = ProtocolCard(
     ),
 )
 
+LOADER_NOTE = (
+    "v2: on KITTI (original or CorrI2P layout) each frame is built as the paper's preprocessing and loader build it "
+    "for the frame's dataset index (i2pbench.protocol_peer, checked against the loaders: docs/datasets.md); v1 "
+    "voxelised in the LiDAR frame and drew from i2pbench's per-frame generator"
+)
 _PEER_KITTI = Inputs(image_scale=0.5, image_crop=(160, 512), points=40960, voxel_m=0.1, pose_frame="camera")
 _PEER_NUSCENES = Inputs(image_top=100, image_scale=0.4, image_crop=(160, 320), points=40960, voxel_m=0.1, sweeps=3,
                         pose_frame="camera")  # fmt: skip
 
 CORRI2P = ProtocolCard(
     name="corri2p",
-    version=1,
+    version=2,
     paper="CorrI2P",
     kitti=_PEER_KITTI,
     nuscenes=dataclasses.replace(_PEER_NUSCENES, image_scale=0.2),
@@ -169,6 +174,7 @@ CORRI2P = ProtocolCard(
         _cite("rsy6318/CorrI2P", "analysis.py:81-86 — the outlier filter commented out"),
         _cite("rsy6318/CorrI2P", "analysis.py:89-91 — success RRE < 5 and RTE < 2 over every frame"),
         _cite("rsy6318/CorrI2P", "kitti_pc_img_dataloader.py:269-287 — 0.1 m voxels, 40960 points, x0.5, centre crop"),
+        _cite("rsy6318/CorrI2P", "kitti_pc_img_dataloader.py:259-263 — the cloud taken into the camera frame first"),
         _cite("rsy6318/CorrI2P", "eval_all.py:25,34-45 — 40960 points; camera-frame t_x, t_z ±10 m, yaw ±2π"),
         _cite(
             "rsy6318/CorrI2P",
@@ -179,6 +185,8 @@ CORRI2P = ProtocolCard(
     notes=(
         "a failed PnP returns uninitialised rvec/tvec that cal_error_all.py scores as they are; the card scores "
         "the identity pose instead (what DeepI2P substitutes on purpose), a finite, reproducible stand-in",
+        LOADER_NOTE,
+        "kitti_pc_img_dataloader.py seeds nothing at test; i2pbench seeds each index as CoFiI2P does",
     ),
 )
 
@@ -269,7 +277,7 @@ DEEPI2P = ProtocolCard(
 
 COFII2P = ProtocolCard(
     name="cofii2p",
-    version=1,
+    version=2,
     paper="CoFiI2P",
     kitti=dataclasses.replace(_PEER_KITTI, points=20480),
     nuscenes=dataclasses.replace(_PEER_NUSCENES, points=20480),
@@ -281,6 +289,7 @@ COFII2P = ProtocolCard(
         _cite("WHU-USI3DV/CoFiI2P", "evaluation/calc_result.py:28-29,33 — the (10°, 5 m) thresholds"),
         _cite("WHU-USI3DV/CoFiI2P", "data/options.py:12-21,33-38 — 160 x 512, 20480 points, t ±10 m, yaw ±2π"),
         _cite("WHU-USI3DV/CoFiI2P", "data/kitti.py:283-320 — 0.1 m voxels, sampling, x0.5, centre crop"),
+        _cite("WHU-USI3DV/CoFiI2P", "data/kitti.py:261-264 — numpy and Python seeded with SeedSequence([index])"),
         _cite("WHU-USI3DV/CoFiI2P", "data/options.py:68-74 — nuScenes: 3 sweeps, top 100 rows, x0.4, 160 x 320"),
         _cite("WHU-USI3DV/CoFiI2P", "data/build_nuscenes/build_dataset.py:253-254 — the top rows cut before saving"),
     ),
@@ -288,6 +297,7 @@ COFII2P = ProtocolCard(
         "calc_result.py prints three threshold pairs, (1e5, 1e5), (45°, 10 m) and (10°, 5 m); the card takes "
         "(10°, 5 m), the pair whose mean ± std the paper reports, for both the rate and the filter",
         "the rate divides by PnP successes, not by frames: a failure leaves the denominator",
+        LOADER_NOTE,
     ),
 )
 

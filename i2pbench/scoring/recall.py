@@ -69,22 +69,27 @@ def sequences(records: pd.DataFrame) -> list[str]:
     ]
 
 
+SEQUENCE_ROW = ["combination", "weights", "sequence"]  # what each line of the per-sequence table is about
 SEQUENCE_COLUMNS = ["frames", "Acc. (%) ↑", "RTE p50 (m)", "RTE p90 (m)", "RRE p50 (°)", "RRE p90 (°)"]
+ALL = "all"  # the sequence of a row's line over all its frames
 
 
-def by_sequence(records: pd.DataFrame, protocol: Protocol, label=None) -> pd.DataFrame:
-    """Per leaderboard row (combination, weights; `label(combination, weights)` names it) and sequence: frames, Acc.
-    and the RTE and RRE medians and 90th percentiles; each row's "all" line first. Clean records only."""
+def by_sequence(records: pd.DataFrame, protocol: Protocol) -> pd.DataFrame:
+    """One line per leaderboard row (combination, weights) and sequence: frames, Acc. and the RTE and RRE medians
+    and 90th percentiles; first a row's "all" line when its frames span several sequences (over one, it would
+    repeat that sequence's line). Clean records only."""
     if "corruption" in records:
         records = records[records["corruption"].fillna("") == ""]
-    rows = []
+    lines = []
     for (combination, weights), group in records.groupby(["combination", "weights"], sort=False):
-        name = label(combination, weights) if label else f"{combination} ({weights})"
-        seqs = group.assign(_seq=sequences(group))
-        parts = [("all", seqs), *seqs.groupby("_seq", sort=True)]
-        for seq, part in parts:
-            rte, rre = _errors(part)
-            acc = 100.0 * float(((rte < protocol.acc_rte_m) & (rre < protocol.acc_rre_deg)).mean())
-            values = [len(part), round(acc, 2), *(percentile(e, q) for e in (rte, rre) for q in (50, 90))]
-            rows.append({"row": name, "sequence": seq, **dict(zip(SEQUENCE_COLUMNS, values, strict=True))})
-    return pd.DataFrame(rows, columns=["row", "sequence", *SEQUENCE_COLUMNS])
+        parts = list(group.groupby(sequences(group), sort=True))
+        whole = [(ALL, group)] if len(parts) > 1 else []
+        for seq, part in whole + parts:
+            lines.append([combination, weights, seq, *_sequence_cells(part, protocol)])
+    return pd.DataFrame(lines, columns=SEQUENCE_ROW + SEQUENCE_COLUMNS)
+
+
+def _sequence_cells(records: pd.DataFrame, protocol: Protocol) -> list:
+    rte, rre = _errors(records)
+    acc = 100.0 * float(((rte < protocol.acc_rte_m) & (rre < protocol.acc_rre_deg)).mean())
+    return [len(records), round(acc, 2), *(percentile(e, q) for e in (rte, rre) for q in (50, 90))]

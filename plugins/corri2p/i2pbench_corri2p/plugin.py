@@ -13,6 +13,16 @@ from .method import corri2p
 
 
 @hookimpl
+def register_extractors_2d(register: Register) -> None:
+    register("i2pbench_corri2p.official.stages:OfficialGrid", name="corri2p-official-grid")
+
+
+@hookimpl
+def register_extractors_3d(register: Register) -> None:
+    register("i2pbench_corri2p.official.stages:OfficialPoints", name="corri2p-official-points")
+
+
+@hookimpl
 def register_encoders_2d(register: Register) -> None:
     register("i2pbench_corri2p.image:CorrI2PImageEncoder", name="corri2p-resnet")
 
@@ -30,6 +40,7 @@ def register_exchangers(register: Register) -> None:
 @hookimpl
 def register_matchers(register: Register) -> None:
     register("i2pbench_corri2p.overlap:CorrI2PMatcher", name="corri2p-overlap")
+    register("i2pbench_corri2p.official.stages:OfficialCorrI2P", name="corri2p-official")
 
 
 @hookimpl

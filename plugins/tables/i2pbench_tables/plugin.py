@@ -12,8 +12,18 @@ from __future__ import annotations
 from i2pbench.api import hookimpl
 
 # Table I's rows: DeepI2P's grid classification + PnP, its frustum classification + inverse projection in 3D and 2D,
-# CorrI2P, then EdgeRegNet ("Ours"); every method at the size whose weights are trained here
-TABLE_1 = ("deepi2p", "deepi2p-frustum-3d", "deepi2p-frustum-2d", "corri2p", "default", "classic-oracle")
+# CorrI2P, then EdgeRegNet ("Ours"); every method at the size whose weights are trained here, and beside CorrI2P's
+# CPU look-alike its authors' own network (`official`: untrained here unless given imported weights, as its row's
+# weights column says)
+TABLE_1 = (
+    "deepi2p",
+    "deepi2p-frustum-3d",
+    "deepi2p-frustum-2d",
+    "corri2p",
+    "corri2p-official",
+    "default",
+    "classic-oracle",
+)
 # the same rows at the sizes the papers report (their encoders and keypoint counts; no weights shipped for them)
 TABLE_1_PAPER_SIZE = ("deepi2p-paper", "corri2p-paper", "edgeregnet-full", "classic-oracle")
 

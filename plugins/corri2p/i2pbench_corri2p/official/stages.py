@@ -1,0 +1,238 @@
+"""The official size's stages: the authors' pixels and points (their loader's preparation), their network as one
+matcher stage with their inference rule (cal_error_all.py), and the geometry that lets the generic EPnP-RANSAC
+solver run their PnP.
+
+Why one learned stage: the authors' network exchanges whole feature maps (strides 2 to 32) and node sets between
+its branches, not per-keypoint descriptors, so it has no cut at i2pbench's encoder/exchanger boundaries; the
+official size runs no encoder or exchanger, and the matcher holds the network (network.py), its four parts under
+`encoder3d.`, `encoder2d.`, `exchange.` and `heads.`.
+
+Pixels (`corri2p-official-grid`): the authors' image is the frame's, top 50 rows cut, halved (OpenCV linear) and
+centre-cropped to 160 x 512 (options.py `crop_original_top_rows`, kitti_pc_img_dataloader.py:274-287); the network
+scores every cell of its stride-4 map, whose (x, y) the authors' PnP reads with K at 1/4 of the crop's
+(cal_error_all.py:44-48, 81-86). That cell is full-resolution pixel (8x + 2 dx, 8y + 2 dy + 50) under the frame's K
+(dx, dy: the crop's offsets in the half-size image), exactly: so EPnP on these pixels with the frame's K and 8 px is
+their EPnP on (x, y) with K/4 and 1 px. The crop (top rows, scale, size) is a conf of the grid and of the matcher,
+their defaults the authors'; a frame too small for it gets no pixel (the conformance kit scales it to its frame).
+
+Points (`corri2p-official-points`): the scan voxelised at 0.1 m with open3d normals (radius 0.6 m, 30 neighbours,
+oriented to +z) and the intensity of the nearest return (kitti_script/kitti_pc_bin_to_npy_with_downsample_sn.py),
+then a seeded random 40,960 of them (the loader's `downsample_np`). Kept differences: the loader's second 0.1 m
+voxelisation in the camera frame is not repeated (it merges only points a shifted grid brings together); each
+point's `index` is its nearest return's row (matches name frame points); the network sees the cloud in camera axes
+(x right, y down, z forward: a fixed permutation of the LiDAR's, no extrinsic), in which the protocol's yaw is the
+rotation about y that the authors train under.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import cv2
+import numpy as np
+import torch
+
+from i2pbench.api import (
+    KEYPOINTS2D,
+    KEYPOINTS3D,
+    MATCHES,
+    BatchedStage,
+    Device,
+    Extractor2D,
+    Extractor3D,
+    Features,
+    Frame,
+    Keypoints2D,
+    Keypoints3D,
+    Matcher,
+    Matches,
+)
+from i2pbench.layers.pointnet2 import frame_seed
+
+from .network import IMAGE_SIZE, NODES, NUM_POINTS, CorrI2PNet
+
+STRIDE = 4  # the decoder's output stride
+LIDAR_TO_CAMERA_AXES = np.array([[0, -1, 0], [0, 0, -1], [1, 0, 0]], np.float32)
+# the authors' image preparation (options.py crop_original_top_rows, img_scale, img_W x img_H): a conf of the grid
+# and of the matcher, which must agree (the official size pins both to these)
+CROP: dict[str, Any] = {"top_rows": 50, "scale": 0.5, "crop": (IMAGE_SIZE[1], IMAGE_SIZE[0])}
+
+
+def crop_offsets(width: int, height: int, crop: Mapping[str, Any]) -> tuple[int, int] | None:
+    """(dx, dy) of the centre crop in the scaled image (rows below `top_rows`), as the loader's val mode; None for a
+    frame too small to hold it."""
+    scaled_w = round(width * crop["scale"])
+    scaled_h = round((height - crop["top_rows"]) * crop["scale"])
+    crop_w, crop_h = crop["crop"]
+    if scaled_w < crop_w or scaled_h < crop_h:
+        return None
+    return (scaled_w - crop_w) // 2, (scaled_h - crop_h) // 2
+
+
+def network_image(image: np.ndarray, crop: Mapping[str, Any]) -> np.ndarray:
+    """the frame's RGB image -> the authors' crop (H x W x 3 uint8); the frame must hold it (crop_offsets)."""
+    cut = image[crop["top_rows"] :]
+    size = (round(cut.shape[1] * crop["scale"]), round(cut.shape[0] * crop["scale"]))
+    scaled = cv2.resize(cut, size, interpolation=cv2.INTER_LINEAR)
+    dx, dy = crop_offsets(image.shape[1], image.shape[0], crop)
+    crop_w, crop_h = crop["crop"]
+    return np.ascontiguousarray(scaled[dy : dy + crop_h, dx : dx + crop_w])
+
+
+def grid_pixels(width: int, height: int, crop: Mapping[str, Any] = CROP) -> np.ndarray:
+    """the full-resolution pixel of each stride-4 cell of the crop, raster order -> [cells x 2]; none for a frame
+    too small to hold the crop."""
+    offsets = crop_offsets(width, height, crop)
+    if offsets is None:
+        return np.zeros((0, 2), np.float32)
+    (dx, dy), (crop_w, crop_h) = offsets, crop["crop"]
+    rows, cols = np.divmod(np.arange((crop_h // STRIDE) * (crop_w // STRIDE)), crop_w // STRIDE)
+    step, scale = STRIDE / crop["scale"], 1 / crop["scale"]
+    return np.stack([step * cols + scale * dx, step * rows + scale * dy + crop["top_rows"]], 1).astype(np.float32)
+
+
+def pixel_cells(uv: np.ndarray, width: int, height: int, crop: Mapping[str, Any] = CROP) -> np.ndarray:
+    """the stride-4 cell of the crop each pixel uv [M x 2] falls in (the inverse of grid_pixels, whose pixels are
+    their cells' corners), raster order -> [M] int64; -1 outside the crop."""
+    offsets = crop_offsets(width, height, crop)
+    if offsets is None:
+        return np.full(len(uv), -1, np.int64)
+    (dx, dy), (crop_w, crop_h) = offsets, crop["crop"]
+    step = STRIDE / crop["scale"]
+    col = np.floor((uv[:, 0] - dx / crop["scale"]) / step).astype(np.int64)
+    row = np.floor((uv[:, 1] - crop["top_rows"] - dy / crop["scale"]) / step).astype(np.int64)
+    inside = (col >= 0) & (col < crop_w // STRIDE) & (row >= 0) & (row < crop_h // STRIDE)
+    return np.where(inside, row * (crop_w // STRIDE) + col, -1)
+
+
+def voxel_cloud(frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """the scan's 0.1 m voxel centroids [V x 3], their normals [V x 3], nearest-return intensity [V] and row [V]."""
+    import open3d as o3d
+    from scipy.spatial import cKDTree
+
+    finite = np.flatnonzero(np.isfinite(frame.points).all(1))
+    raw = frame.points[finite]
+    if len(raw) == 0:
+        empty = np.zeros((0, 3), np.float32)
+        return empty, empty, np.zeros(0, np.float32), np.zeros(0, np.int64)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(raw[:, :3].astype(np.float64)))
+    down = cloud.voxel_down_sample(voxel_size=0.1)
+    down.estimate_normals(search_param=o3d.geometry.KDTreeSearchParamHybrid(radius=0.6, max_nn=30))
+    down.orient_normals_to_align_with_direction([0, 0, 1])
+    xyz = np.asarray(down.points, np.float32)
+    _, nearest = cKDTree(raw[:, :3]).query(xyz, k=1)
+    return xyz, np.asarray(down.normals, np.float32), raw[nearest, 3].astype(np.float32), finite[nearest]
+
+
+def farthest_nodes(points: np.ndarray, count: int, pool: int, rng: np.random.Generator) -> np.ndarray:
+    """the loader's node sampling: FPS (float64, first index at a tie, from a random start) over a random
+    pool * count of points [N x 3] -> [count x 3]."""
+    subset = points[rng.choice(len(points), min(pool * count, len(points)), replace=False)].astype(np.float64)
+    # fewer points than nodes: FPS repeats a point once all are taken, as the loader's does
+    chosen = [int(rng.integers(len(subset)))]
+    dist = ((subset - subset[chosen[0]]) ** 2).sum(1)
+    for _ in range(1, count):
+        chosen.append(int(np.argmax(dist)))
+        dist = np.minimum(dist, ((subset - subset[chosen[-1]]) ** 2).sum(1))
+    return subset[chosen].astype(np.float32)
+
+
+class OfficialGrid(Extractor2D):
+    """Every stride-4 cell of the authors' crop, as the frame's pixel their PnP puts it at (module docstring)."""
+
+    name = "corri2p-official-grid"
+    default_conf: ClassVar[dict[str, Any]] = dict(CROP)
+
+    def __call__(self, frame: Frame) -> Keypoints2D:
+        width, height = frame.image_size
+        return Keypoints2D(uv=grid_pixels(width, height, self.conf))
+
+
+class OfficialPoints(Extractor3D):
+    """A seeded 40,960 of the scan's 0.1 m voxel centroids (module docstring)."""
+
+    name = "corri2p-official-points"
+    default_conf: ClassVar[dict[str, Any]] = {"max_keypoints": NUM_POINTS, "seed": 0}
+
+    def __call__(self, frame: Frame) -> Keypoints3D:
+        xyz, _, intensity, rows = voxel_cloud(frame)
+        count = int(self.conf["max_keypoints"])
+        rng = np.random.default_rng([frame_seed(frame), int(self.conf["seed"])])
+        pick = np.sort(rng.choice(len(xyz), count, replace=False)) if len(xyz) > count else np.arange(len(xyz))
+        return Keypoints3D(index=rows[pick].astype(np.int64), xyz=xyz[pick], reflectance=intensity[pick])
+
+
+class OfficialCorrI2P(BatchedStage, Matcher):
+    """The authors' network and inference rule (cal_error_all.py:61-77): pixels and points whose overlap score
+    exceeds 0.9, each such point paired with the selected pixel nearest in cosine distance. A pixel reads the cell it
+    falls in (the official grid's pixels are every cell once, as theirs; other pixels work too)."""
+
+    name = "corri2p-official"
+    consumes = frozenset({KEYPOINTS2D, KEYPOINTS3D})
+    provides = frozenset({MATCHES})
+    runtime_keys = frozenset({"score_threshold"})
+    default_conf: dict[str, Any] = {
+        "score_threshold": 0.9,  # cal_error_all.py:61, 69 (both sides)
+        "nodes": NODES,  # node_a and node_b each (options.py; network.py says why not the loader's 256)
+        "node_pool": 8,  # FPS over a random 8 x nodes points (kitti_pc_img_dataloader.py:330-338)
+        "radius_px": 8.0,  # a pair's tolerance: train.py's 1 px at stride 4 of the half-size image
+        **CROP,
+    }
+
+    def __init__(self, conf: Mapping[str, Any] | None = None) -> None:
+        super().__init__(conf)
+        crop_w, crop_h = self.conf["crop"]
+        self.net = CorrI2PNet(int(self.conf["nodes"]), (crop_h, crop_w))
+
+    def prepare(
+        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, device: Device = "cpu", cache: dict | None = None
+    ) -> dict[str, torch.Tensor]:
+        """the network's inputs: image [3 x 160 x 512], cloud and normals [3 x N] in camera axes, intensity
+        [1 x N], nodes [3 x M] each."""
+        voxels, normals, _, _ = voxel_cloud(frame)
+        from scipy.spatial import cKDTree
+
+        _, row = cKDTree(voxels).query(np.asarray(kp3d.xyz, np.float32), k=1)
+        pc = np.asarray(kp3d.xyz, np.float32) @ LIDAR_TO_CAMERA_AXES.T
+        rng = np.random.default_rng(frame_seed(frame))
+        nodes = [farthest_nodes(pc, int(self.conf["nodes"]), int(self.conf["node_pool"]), rng) for _ in range(2)]
+        image = torch.from_numpy(network_image(frame.image, self.conf).astype(np.float32) / 255.0).permute(2, 0, 1)
+        sn = normals[row] @ LIDAR_TO_CAMERA_AXES.T
+        inputs = {
+            "image": image, "pc": torch.from_numpy(pc.T.copy()), "sn": torch.from_numpy(sn.T.copy()),
+            "intensity": torch.from_numpy(np.asarray(kp3d.reflectance, np.float32))[None],
+            "node_a": torch.from_numpy(nodes[0].T.copy()), "node_b": torch.from_numpy(nodes[1].T.copy()),
+        }  # fmt: skip
+        return {k: v.contiguous().to(device) for k, v in inputs.items()}
+
+    def forward(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """`prepare`d frames -> descriptors and scores of every point and stride-4 pixel (network.py)."""
+        return self.net(inputs["pc"], inputs["intensity"], inputs["sn"], inputs["image"], inputs["node_a"],
+                        inputs["node_b"])  # fmt: skip
+
+    @torch.no_grad()
+    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Matches:
+        if len(kp2d) == 0 or len(kp3d) == 0:  # a frame too small for the crop, or an empty scan
+            return Matches.empty()
+        width, height = frame.image_size
+        cells = torch.from_numpy(pixel_cells(np.asarray(kp2d.uv, np.float32), width, height, self.conf))
+        if (cells < 0).all():  # a frame too small for the crop, or no pixel inside it
+            return Matches.empty()
+        out = self.batched(self.one(frame, kp2d, kp3d))
+        threshold = float(self.conf["score_threshold"])
+        scores = out["img_score"][0, 0].flatten()
+        pixels = torch.nonzero((cells >= 0) & (scores[cells.clamp(min=0)] > threshold))[:, 0]
+        points = torch.nonzero(out["pc_score"][0, 0] > threshold)[:, 0]
+        if len(pixels) == 0 or len(points) == 0:
+            return Matches.empty()
+        image_features = out["img_feature"][0].flatten(1)[:, cells[pixels]]
+        similarity = out["pc_feature"][0][:, points].t() @ image_features
+        best = similarity.argmax(1)  # the nearest pixel in cosine distance 1 - <f_pc, f_img>, first at a tie
+        score = similarity.gather(1, best[:, None])[:, 0]
+        return Matches(
+            pixels[best].cpu().numpy(),
+            points.cpu().numpy(),
+            score.float().cpu().numpy(),
+            radius_px=self.conf["radius_px"],
+        )
