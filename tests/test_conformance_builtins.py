@@ -32,6 +32,10 @@ SMALL_CONFS = {
     # CorrI2P's authors' crop scaled to the kit's 160 x 96 frame (their 512 x 160 needs a KITTI-size image), 16 nodes
     ("extractor2d", "corri2p-official-grid"): {"crop": (64, 32), "top_rows": 0},
     ("matcher", "corri2p-official"): {"crop": (64, 32), "top_rows": 0, "nodes": 16},
+    # VP2P-Match's authors' crop scaled to the kit's frame likewise, 1,024 points (the network is the authors' size)
+    ("extractor2d", "vp2p-match-official-grid"): {"crop": (64, 32)},
+    ("extractor3d", "vp2p-match-official-points"): {"max_keypoints": 1024},
+    ("matcher", "vp2p-match-official"): {"crop": (64, 32)},
 }
 
 COMPONENTS = sorted((kind, name) for kind, table in default_registry().components.items() for name in table)

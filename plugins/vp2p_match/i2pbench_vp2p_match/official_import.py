@@ -4,8 +4,9 @@ loads (`model.load_state_dict(torch.load(args.load_ckpt))`, line 410).
 The official modules keep the authors' key names and shapes, torchsparse's `[K^3 x C_in x C_out]` kernels included
 (layers.sparse uses torchsparse's kernel-offset order), so nothing is renamed or transposed: a file loads when its keys
 and shapes are exactly the network's, and is refused with the misfitting keys named otherwise. What a run records of
-the file: its sha256 and where it comes from. (Still to do: the `vp2p-match` method that declares this as its
-`vp2p-match-official` importer; docs/methods.md.)
+the file: its sha256 and where it comes from. `import_official` is the `vp2p-match` method's `vp2p-match-official`
+importer (`i2pbench weights import vp2p-match-official FILE`): the state goes, keys unchanged, under the official
+matcher stage's `net.`.
 """
 
 from __future__ import annotations
@@ -16,12 +17,13 @@ from pathlib import Path
 
 import torch
 
-from i2pbench.api import WeightsError
+from i2pbench.api import ImportedWeights, WeightsError
 
 from .official.network import VP2PMatchNet
 
 RELEASE = "authors' release (KITTI)"
 FORMAT = "VP2P-Match VP2PMatchNet state dict"
+SIZE, STAGE, PREFIX = "official", "matcher", "net."  # the size and stage the network runs in (stages.py)
 
 
 def read_state(path: Path) -> dict[str, torch.Tensor]:
@@ -49,14 +51,26 @@ def misfits(state: Mapping[str, torch.Tensor], expected: Mapping[str, torch.Tens
     return problems
 
 
-def load_official(path: Path) -> tuple[VP2PMatchNet, dict[str, str]]:
-    """the official network with the file's weights, and what identifies them (sha256, release, format)."""
+def checked_state(path: Path, net: VP2PMatchNet) -> dict[str, torch.Tensor]:
+    """the file's state dict, refused with the misfitting keys named unless it is exactly `net`'s."""
     state = read_state(path)
-    net = VP2PMatchNet()
     problems = misfits(state, net.state_dict())
     if problems:
         shown = "; ".join(problems[:12]) + (f"; and {len(problems) - 12} more" if len(problems) > 12 else "")
         raise WeightsError(f"{path} is not the authors' VP2PMatchNet state dict: {shown}")
-    net.load_state_dict(state)
+    return state
+
+
+def load_official(path: Path) -> tuple[VP2PMatchNet, dict[str, str]]:
+    """the official network with the file's weights, and what identifies them (sha256, release, format)."""
+    net = VP2PMatchNet()
+    net.load_state_dict(checked_state(path, net))
     digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
     return net, {"sha256": digest, "release": RELEASE, "format": FORMAT}
+
+
+def import_official(path: Path) -> ImportedWeights:
+    """the authors' checkpoint as the official size's weights (i2pbench.weights.import_weights records its sha256)."""
+    state = checked_state(path, VP2PMatchNet())
+    return ImportedWeights(SIZE, {STAGE: {PREFIX + k: v for k, v in state.items()}}, {"release": RELEASE},
+                           {"format": FORMAT})  # fmt: skip
