@@ -2,8 +2,9 @@
 
 The rows are the methods' own presets, named rather than copied (`register_presets` takes a preset's name as an
 entry), so a row runs exactly what `--preset deepi2p` or `--preset corri2p` runs, with the weights `--weights auto`
-picks for it (or untrained, which the row then says). VP2P-Match, the paper's fourth peer, is not among them: it is
-not implemented (docs/methods.md says why). The oracle row, which the paper lacks, is the ceiling of the protocol.
+picks for it (or untrained, which the row then says). VP2P-Match, the paper's fourth peer, runs as its authors'
+network only (no weights are trained or shipped here: untrained unless given imported ones, which its weights column
+says). The oracle row, which the paper lacks, is the ceiling of the protocol.
 `i2pbench table` joins one such leaderboard per dataset into the paper's layout (KITTI and nuScenes columns).
 """
 
@@ -12,15 +13,16 @@ from __future__ import annotations
 from i2pbench.api import hookimpl
 
 # Table I's rows: DeepI2P's grid classification + PnP, its frustum classification + inverse projection in 3D and 2D,
-# CorrI2P, then EdgeRegNet ("Ours"); every method at the size whose weights are trained here, and beside CorrI2P's
-# CPU look-alike its authors' own network (`official`: untrained here unless given imported weights, as its row's
-# weights column says)
+# CorrI2P, VP2P-Match, then EdgeRegNet ("Ours"); every method at the size whose weights are trained here, beside
+# CorrI2P's CPU look-alike its authors' own network, and VP2P-Match's authors' network (both `official`: untrained
+# here unless given imported weights, as their rows' weights column says)
 TABLE_1 = (
     "deepi2p",
     "deepi2p-frustum-3d",
     "deepi2p-frustum-2d",
     "corri2p",
     "corri2p-official",
+    "vp2p-match-official",
     "default",
     "classic-oracle",
 )
@@ -33,8 +35,8 @@ def register_presets(register) -> None:
     register(
         "paper-table-1",
         list(TABLE_1),
-        "the seed paper's Table I: DeepI2P (grid + PnP, frustum 3D, frustum 2D), CorrI2P, EdgeRegNet, the oracle "
-        "ceiling; each method's trainable size",
+        "the seed paper's Table I: DeepI2P (grid + PnP, frustum 3D, frustum 2D), CorrI2P, VP2P-Match (the authors' "
+        "network, untrained unless imported), EdgeRegNet, the oracle ceiling; each method's trainable size",
     )
     register(
         "paper-table-1-paper-size",
