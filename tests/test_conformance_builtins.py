@@ -38,6 +38,10 @@ SMALL_CONFS = {
     ("extractor2d", "deepi2p-official-grid"): {"crop": (64, 32), "top_rows": 0},
     ("matcher", "deepi2p-official"): {"crop": (64, 32), "top_rows": 0, "nodes": 16, "normals_points": 1024},
     ("solver", "deepi2p-official-frustum"): {"crop": (64, 32), "top_rows": 0, "restarts": 2},
+    # VP2P-Match's authors' crop scaled to the kit's frame likewise, 1,024 points (the network is the authors' size)
+    ("extractor2d", "vp2p-match-official-grid"): {"crop": (64, 32)},
+    ("extractor3d", "vp2p-match-official-points"): {"max_keypoints": 1024},
+    ("matcher", "vp2p-match-official"): {"crop": (64, 32)},
 }
 
 # components whose weights come from an optional extra: their conformance is checked only where it is installed

@@ -63,8 +63,10 @@ LAYER_CODE = {
     "mlp": (0, "1e8fb86b56f9"),
     "nodes": (0, "57e284127b45"),
     "pointnet2": (1, "ee6c35457d80"),  # the torch FPS rounds as the compiled one (issue 39); seeded_cloud: same
+    "point_voxel": (0, "6454dd9cb5d5"),
     "resnet": (0, "38d6e5b5dcfe"),
     "sampling": (0, "dd084e30084c"),
+    "sparse": (0, "862328a80b46"),
 }
 
 

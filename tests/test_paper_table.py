@@ -65,6 +65,7 @@ def test_the_paper_table_lists_the_seed_papers_methods_in_table_1_order():
         "deepi2p (deepi2p-official)",
         "corri2p",
         "corri2p (corri2p-official)",
+        "vp2p-match (vp2p-match-official)",
         "edgeregnet (default)",
         "classic-oracle",
     ]

@@ -6,7 +6,9 @@
 - `sampling`: SuperPoint-style bilinear descriptor sampling, per-image normalisation of a padded batch;
 - `resnet`: residual blocks with GroupNorm, the coarse-cell mask of a padded batch (CorrI2P, DeepI2P);
 - `frame_norm`, `mlp`: per-keypoint MLPs normalised over each frame's keypoints, or by LayerNorm;
-- `attention`, `nodes`: the key mask of padded attention; node pooling and per-frame means.
+- `attention`, `nodes`: the key mask of padded attention; node pooling and per-frame means;
+- `sparse`, `point_voxel`: sparse 3D convolution in plain torch computing torchsparse 2.0's function, and SPVCNN's
+  point <-> voxel conversions (VP2P-Match).
 
 Plugins import these and `i2pbench.api`, never each other (tests/test_plugin_imports.py). A shared layer is a
 dependency a component's own `revision` cannot see, so each module here declares a `REVISION` of its own, to bump

@@ -9,13 +9,16 @@ import torch
 
 from ..components import TrainableMatcher
 from ..errors import I2PBenchError, PluginError
+from ..learned import BatchedStage
 from ..pipeline import Pipeline
 from .batching import BatchForward
 
 
 def check_trainable(pipeline: Pipeline) -> TrainableMatcher:
     matcher = pipeline.stages["matcher"]
-    if not isinstance(matcher, TrainableMatcher):
+    # a batched matcher inherits `loss`, which trains only through its own `batch_loss`
+    untrained_batched = isinstance(matcher, BatchedStage) and type(matcher).batch_loss is BatchedStage.batch_loss
+    if not isinstance(matcher, TrainableMatcher) or untrained_batched:
         raise PluginError(f"{matcher.label} has no training loss; choose a trainable matcher")
     if not pipeline.learned_modules():
         raise PluginError(f"combination {pipeline.combination.label!r} has no learned stage to train")

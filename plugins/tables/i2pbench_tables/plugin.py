@@ -2,8 +2,9 @@
 
 The rows are the methods' own presets, named rather than copied (`register_presets` takes a preset's name as an
 entry), so a row runs exactly what `--preset deepi2p` or `--preset corri2p` runs, with the weights `--weights auto`
-picks for it (or untrained, which the row then says). VP2P-Match, the paper's fourth peer, is not among them: it is
-not implemented (docs/methods.md says why). The oracle row, which the paper lacks, is the ceiling of the protocol.
+picks for it (or untrained, which the row then says). VP2P-Match, the paper's fourth peer, runs as its authors'
+network only (no weights are trained or shipped here: untrained unless given imported ones, which its weights column
+says). The oracle row, which the paper lacks, is the ceiling of the protocol.
 `i2pbench table` joins one such leaderboard per dataset into the paper's layout (KITTI and nuScenes columns).
 """
 
@@ -12,9 +13,9 @@ from __future__ import annotations
 from i2pbench.api import hookimpl
 
 # Table I's rows: DeepI2P's grid classification + PnP, its frustum classification + inverse projection in 3D and 2D,
-# CorrI2P, then EdgeRegNet ("Ours"); every method at the size whose weights are trained here, and beside DeepI2P's
-# and CorrI2P's CPU look-alikes their authors' own networks (`official`: untrained here unless given imported
-# weights, as their rows' weights column says)
+# CorrI2P, VP2P-Match, then EdgeRegNet ("Ours"); every method at the size whose weights are trained here, and beside
+# DeepI2P's and CorrI2P's CPU look-alikes their authors' own networks, with VP2P-Match's authors' network (`official`:
+# untrained here unless given imported weights, as their rows' weights column says)
 TABLE_1 = (
     "deepi2p",
     "deepi2p-frustum-3d",
@@ -22,6 +23,7 @@ TABLE_1 = (
     "deepi2p-official",
     "corri2p",
     "corri2p-official",
+    "vp2p-match-official",
     "default",
     "classic-oracle",
 )
@@ -34,8 +36,9 @@ def register_presets(register) -> None:
     register(
         "paper-table-1",
         list(TABLE_1),
-        "the seed paper's Table I: DeepI2P (grid + PnP, frustum 3D, frustum 2D), CorrI2P, EdgeRegNet, the oracle "
-        "ceiling; each method's trainable size, and DeepI2P's and CorrI2P's authors' networks (untrained here)",
+        "the seed paper's Table I: DeepI2P (grid + PnP, frustum 3D, frustum 2D), CorrI2P, VP2P-Match, EdgeRegNet, the "
+        "oracle ceiling; each method's trainable size, and DeepI2P's, CorrI2P's and VP2P-Match's authors' networks "
+        "(untrained here unless imported)",
     )
     register(
         "paper-table-1-paper-size",

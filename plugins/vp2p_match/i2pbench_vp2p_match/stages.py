@@ -1,0 +1,164 @@
+"""The official size's stages: the authors' pixels and points (their KITTI loader's preparation), their network as one
+matcher stage with run_kitti.py's inference rule, and the geometry that lets the generic EPnP-RANSAC solver run their
+PnP.
+
+Why one learned stage: the network fuses whole feature maps and global features across its branches, not
+per-keypoint descriptors, so it has no cut at i2pbench's encoder/exchanger boundaries (as CorrI2P's official size).
+
+Pixels (`vp2p-match-official-grid`): the authors' image is the frame's halved (OpenCV linear, no rows cut) and
+centre-cropped to 160 x 512 (models/kitti_dataset.py:306-319); the network scores every cell of its stride-4 map, whose
+(x, y) their PnP reads with K at 1/4 of the crop's (run_kitti.py:53-91, kitti_dataset.py:322-323). That cell is the
+full-resolution pixel (8x + 2 dx, 8y + 2 dy) under the frame's K, exactly, so EPnP on these pixels with the frame's K
+and 8 px is theirs with K/4 and 1 px (prepare.py).
+
+Points (`vp2p-match-official-points`): the scan voxelised at 0.1 m with normals and nearest-return intensity (the
+preprocessed .npy files both papers' loaders read), then a seeded random 40,960 of them in the random order the
+loader's `downsample_np` draws (run_kitti.py keeps the first 8,500 confident points in that order). Kept differences:
+the loader's second 0.1 m voxelisation (in the camera frame) is not repeated; the network sees the cloud in camera
+axes (a fixed permutation of the LiDAR's, no extrinsic).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+from i2pbench.api import (
+    KEYPOINTS2D,
+    KEYPOINTS3D,
+    MATCHES,
+    BatchedStage,
+    Device,
+    Extractor2D,
+    Extractor3D,
+    Features,
+    Frame,
+    Keypoints2D,
+    Keypoints3D,
+    Matcher,
+    Matches,
+)
+from i2pbench.layers.pointnet2 import frame_seed
+
+from .official.network import VP2PMatchNet
+from .prepare import LIDAR_TO_CAMERA_AXES, grid_pixels, network_image, pixel_cells, voxel_cloud
+
+NUM_POINTS = 40960  # utils/options.py input_pt_num
+# the authors' image preparation (kitti_dataset.py:306-319; options.py img_W x img_H): a conf of the grid and of the
+# matcher, which must agree (the official size pins both to these)
+CROP: dict[str, Any] = {"scale": 0.5, "crop": (512, 160)}
+
+
+class OfficialGrid(Extractor2D):
+    """Every stride-4 cell of the authors' crop, as the frame's pixel their PnP puts it at (module docstring)."""
+
+    name = "vp2p-match-official-grid"
+    default_conf: ClassVar[dict[str, Any]] = dict(CROP)
+
+    def __call__(self, frame: Frame) -> Keypoints2D:
+        width, height = frame.image_size
+        return Keypoints2D(uv=grid_pixels(width, height, self.conf))
+
+
+class OfficialPoints(Extractor3D):
+    """A seeded 40,960 of the scan's 0.1 m voxel centroids, in the order drawn (module docstring)."""
+
+    name = "vp2p-match-official-points"
+    default_conf: ClassVar[dict[str, Any]] = {"max_keypoints": NUM_POINTS, "seed": 0}
+
+    def __call__(self, frame: Frame) -> Keypoints3D:
+        xyz, _, intensity, rows = voxel_cloud(frame)
+        count = int(self.conf["max_keypoints"])
+        rng = np.random.default_rng([frame_seed(frame), int(self.conf["seed"])])
+        pick = rng.choice(len(xyz), count, replace=False) if len(xyz) > count else rng.permutation(len(xyz))
+        return Keypoints3D(index=rows[pick].astype(np.int64), xyz=xyz[pick], reflectance=intensity[pick])
+
+
+def confident_pairs(
+    pixel_feat: torch.Tensor,
+    pixel_score: torch.Tensor,
+    point_feat: torch.Tensor,
+    point_score: torch.Tensor,
+    conf: Mapping[str, Any],
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """run_kitti.py:62-87 on one frame: pixels [D x P] and points [D x N] whose scores exceed the thresholds, the first
+    `max_pixels` and `max_points` of each in their order, every such pixel paired with the point nearest in cosine
+    distance (first at a tie) -> (pixel rows, point rows, cosine similarity)."""
+    pixels = torch.nonzero(pixel_score > float(conf["pixel_threshold"]))[:, 0][: int(conf["max_pixels"])]
+    points = torch.nonzero(point_score > float(conf["point_threshold"]))[:, 0][: int(conf["max_points"])]
+    if len(pixels) == 0 or len(points) == 0:
+        return pixels[:0], points[:0], pixel_score[:0]
+    similarity = pixel_feat[:, pixels].t() @ point_feat[:, points]
+    best = similarity.argmax(1)
+    return pixels, points[best], similarity.gather(1, best[:, None])[:, 0]
+
+
+class OfficialVP2PMatch(BatchedStage, Matcher):
+    """The authors' network (VP2PMatchNet) and run_kitti.py's inference rule (confident_pairs). A pixel reads the
+    stride-4 cell it falls in (the official grid's pixels are every cell once, in raster order, as theirs)."""
+
+    name = "vp2p-match-official"
+    consumes = frozenset({KEYPOINTS2D, KEYPOINTS3D})
+    provides = frozenset({MATCHES})
+    runtime_keys = frozenset({"pixel_threshold", "point_threshold", "max_pixels", "max_points"})
+    default_conf: ClassVar[dict[str, Any]] = {
+        "pixel_threshold": 0.95,  # run_kitti.py --img_thres
+        "point_threshold": 0.95,  # run_kitti.py --pc_thres
+        "max_pixels": 2800,  # run_kitti.py:71-73
+        "max_points": 8500,  # run_kitti.py:80-82
+        "radius_px": 8.0,  # a pair's tolerance: --dist_thres 1 px at K/4 of the half-size crop
+        **CROP,
+    }
+
+    def __init__(self, conf: Mapping[str, Any] | None = None) -> None:
+        super().__init__(conf)
+        self.net = VP2PMatchNet()
+
+    def prepare(
+        self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, device: Device = "cpu", cache: dict | None = None
+    ) -> dict[str, torch.Tensor]:
+        """the network's inputs: image [3 x 160 x 512], cloud and normals [3 x N] in camera axes, intensity [1 x N]."""
+        from scipy.spatial import cKDTree
+
+        voxels, normals, _, _ = voxel_cloud(frame)
+        xyz = np.asarray(kp3d.xyz, np.float32)
+        _, row = cKDTree(voxels).query(xyz, k=1)
+        image = torch.from_numpy(network_image(frame.image, self.conf).astype(np.float32) / 255.0).permute(2, 0, 1)
+        inputs = {
+            "img": image,
+            "pc": torch.from_numpy((xyz @ LIDAR_TO_CAMERA_AXES.T).T.copy()),
+            "sn": torch.from_numpy((normals[row] @ LIDAR_TO_CAMERA_AXES.T).T.copy()),
+            "intensity": torch.from_numpy(np.asarray(kp3d.reflectance, np.float32))[None],
+        }
+        return {k: v.contiguous().to(device) for k, v in inputs.items()}
+
+    def forward(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """`prepare`d frames -> descriptors and scores of every point and stride-4 pixel (official/network.py)."""
+        return self.net.trace(inputs["pc"], inputs["intensity"], inputs["sn"], inputs["img"])
+
+    @torch.no_grad()
+    def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Matches:
+        if len(kp2d) == 0 or len(kp3d) == 0:  # a frame too small for the crop, or an empty scan
+            return Matches.empty()
+        width, height = frame.image_size
+        cells = torch.from_numpy(pixel_cells(np.asarray(kp2d.uv, np.float32), width, height, self.conf))
+        inside = torch.nonzero(cells >= 0)[:, 0]
+        if len(inside) == 0:
+            return Matches.empty()
+        out = self.batched(self.one(frame, kp2d, kp3d))
+        pixel_feat = out["pixel_feat"][0].flatten(1)[:, cells[inside]]
+        pixel_score = out["img_score"][0, 0].flatten()[cells[inside]]
+        rows, points, score = confident_pairs(
+            pixel_feat, pixel_score, out["point_feat"][0], out["pc_score"][0, 0], self.conf
+        )
+        if len(rows) == 0:
+            return Matches.empty()
+        return Matches(
+            inside[rows].cpu().numpy(),
+            points.cpu().numpy(),
+            score.float().cpu().numpy(),
+            radius_px=self.conf["radius_px"],
+        )
