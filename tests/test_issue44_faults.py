@@ -392,11 +392,11 @@ sys.path.insert(0, {tests!r})
 if __name__ == "__main__":
     import stall_always
     import test_issue31_interrupt
-    from i2pbench import plugins
     from i2pbench.cli import main
+    from i2pbench.registry import build
 
-    registry = plugins.build_registry((test_issue31_interrupt.StallPlugin(), stall_always.StallAlwaysPlugin()))
-    plugins.default_registry = lambda: registry
+    registry = build.build_registry((test_issue31_interrupt.StallPlugin(), stall_always.StallAlwaysPlugin()))
+    build.default_registry = lambda: registry
     sys.exit(main())
 """
 
