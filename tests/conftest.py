@@ -16,6 +16,14 @@ def missing_sample(*parts: str) -> str | None:
     return f"sample data not found: {path} (set I2PBENCH_SAMPLE_DATA to the folder holding it)"
 
 
+def require(path: Path) -> Path:
+    """`path`, a file or folder of the sample data, or skip the calling test with the one line naming it and the
+    variable."""
+    if not path.exists():
+        pytest.skip(f"sample data not found: {path} (set I2PBENCH_SAMPLE_DATA to the folder holding it)")
+    return path
+
+
 def sample(*parts: str) -> Path:
     """SAMPLE_DATA/parts, or skip the calling test (or fixture) with missing_sample's reason."""
     reason = missing_sample(*parts)

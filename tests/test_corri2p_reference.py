@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import require
 from i2pbench_corri2p.official.checkpoint import dropped, ours
 from i2pbench_corri2p.official.network import CorrI2PNet
 from i2pbench_corri2p.official.reference import reference_forward
@@ -168,8 +169,7 @@ def test_reference_image_is_the_official_stages_crop(folder, shared_data):
 
     meta, inputs, _ = load(folder)
     sequences = shared_data / meta["frame"]
-    if not sequences.is_dir():
-        pytest.skip(f"{sequences} is not present")
+    require(sequences)
     frame = KittiOdometry("all", {"root": str(sequences.parent.parent)}).load(
         f"{sequences.name}/{meta['frame_index']:06d}"
     )

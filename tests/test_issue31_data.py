@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import require
 from test_data_bad_input import KITTI, RECORDS, SAMPLE, needs_kitti, needs_nuscenes
 
 from i2pbench.data.images import image_end, read_image
@@ -81,8 +82,7 @@ def test_a_png_cut_inside_its_chunks_is_truncated(picture, tmp_path, cut):
 @pytest.fixture
 def seq(tmp_path) -> Path:
     """A one-frame copy of KITTI sequence 00."""
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    require(KITTI)
     dst = tmp_path / "sequences" / "00"
     for rel in ("calib.txt", "velodyne/000000.bin", "image_2/000000.png"):
         (dst / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -112,8 +112,7 @@ def test_a_kitti_file_in_upper_case_is_named_not_silently_skipped(seq, folder, n
 
 @pytest.fixture
 def nus_root(tmp_path) -> Path:
-    if not RECORDS.is_dir():
-        pytest.skip(f"{RECORDS} is not present")
+    require(RECORDS)
     build_dataroot([RECORDS], tmp_path / "nuscenes")
     return tmp_path / "nuscenes"
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import toy_plugin
+from conftest import require
 from test_cli_errors import ROOT, assert_refused, i2pbench
 from test_data_bad_input import KITTI, RECORDS, needs_kitti, needs_nuscenes
 
@@ -223,8 +224,7 @@ def _run(runs: Path, frames: int = 2, cwd: Path | None = None):
 @pytest.fixture(scope="module")
 def stored(tmp_path_factory) -> Path:
     """a runs folder of two invocations (2 frames, then 3), copied by each test before it breaks it."""
-    if not KITTI.is_dir():
-        pytest.skip("real KITTI frames not found")
+    require(KITTI)
     runs = tmp_path_factory.mktemp("stored") / "runs"
     assert _run(runs, 2).returncode == 0 and _run(runs, 3).returncode == 0
     return runs / "kitti-all"
@@ -402,8 +402,7 @@ def test_a_full_disk_is_one_error_marks_the_invocation_failed_and_keeps_finished
     from i2pbench.runs import store as store_module
     from i2pbench.runs.invocation import history
 
-    if not KITTI.is_dir():
-        pytest.skip("real KITTI frames not found")
+    require(KITTI)
     real, calls = store_module.pq.write_table, []
 
     def write_table(table, where, **kwargs):

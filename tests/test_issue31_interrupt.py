@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import require
 from i2pbench_classic.extract2d import CannyExtractor
 from plugin_dists import default_sigint
 from test_report_html import KITTI
@@ -56,8 +57,7 @@ if __name__ == "__main__":
 
 
 def _interrupted_run(tmp_path: Path, *extra: str) -> tuple[subprocess.CompletedProcess, Path]:
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    require(KITTI)
     launcher, runs = tmp_path / "launch.py", tmp_path / "runs"
     launcher.write_text(LAUNCHER)
     args = ["run", "--dataset", "kitti", "--split", "all", "--data-root", str(KITTI), "--extractor",

@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import pytest
+from conftest import require
 from test_cli_errors import assert_refused, i2pbench
 from test_issue31_faults import SHIPPED
 from test_report_html import KITTI
@@ -17,8 +17,7 @@ CLASSIC = ["--extractor", "canny", "--extractor3d", "depth", "--matcher", "oracl
 
 
 def _run(tmp_path: Path, *args: str):
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    require(KITTI)
     data = ["--dataset", "kitti", "--split", "all", "--data-root", str(KITTI), "--frames", "1"]
     return i2pbench("run", *data, "--runs-dir", str(tmp_path / "runs"), "--quiet", *args, cwd=tmp_path)
 

@@ -11,6 +11,7 @@ import threading
 from pathlib import Path
 
 import pytest
+from conftest import require
 from test_cli_errors import assert_refused, i2pbench
 from test_report_html import KITTI
 
@@ -51,8 +52,7 @@ def _server(answer: bytes | None):
 
 
 def test_run_with_a_ray_address_nobody_answers_at_is_one_error_and_the_invocation_says_failed(tmp_path):
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    require(KITTI)
     address = f"127.0.0.1:{_closed_port()}"
     args = ["run", "--executor", "ray", "--address", address, "--dataset", "kitti", "--split", "all"]
     args += ["--data-root", str(KITTI), "--frames", "1", "--runs-dir", str(tmp_path / "runs")]

@@ -11,6 +11,7 @@ import re
 from pathlib import Path
 
 import pytest
+from conftest import require
 from test_cli_errors import i2pbench
 from test_report_html import KITTI, TRAP, chromium
 
@@ -34,8 +35,7 @@ def _run(runs: Path, extractors: str, frames: int):
 def two_invocations(tmp_path_factory) -> tuple[Path, list[str], Path]:
     """canny on 3 frames, then lsd and canny on 2 (canny's 2 come from the cache): canny's row holds 3 frames,
     lsd's 2. Gives (runs folder, the header of the second invocation's terminal board, the report)."""
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    require(KITTI)
     runs = tmp_path_factory.mktemp("two") / "runs"
     _run(runs, "canny", 3)
     board = _run(runs, "lsd,canny", 2).stdout

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import SAMPLE_DATA, needs_sample
+from conftest import SAMPLE_DATA, needs_sample, require
 from test_cli_errors import ROOT
 
 from i2pbench.cli import main
@@ -411,8 +411,7 @@ def _stopped_run(tmp_path: Path, sig: int, extractor: str, *extra: str):
     from plugin_dists import default_sigint
     from test_report_html import KITTI
 
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    require(KITTI)
     launcher, runs = tmp_path / "launch.py", tmp_path / "runs"
     launcher.write_text(LAUNCHER.format(tests=str(Path(__file__).resolve().parent)))
     args = ["run", "--dataset", "kitti", "--split", "all", "--data-root", str(KITTI), "--extractor", extractor,
@@ -476,8 +475,7 @@ def test_ctrl_c_before_any_frame_finished_claims_no_board(tmp_path):
 def test_ctrl_c_while_the_board_is_written_marks_the_invocation(tmp_path, capsys, monkeypatch):
     from test_report_html import KITTI
 
-    if not KITTI.is_dir():
-        pytest.skip(f"{KITTI} is not present")
+    require(KITTI)
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt  # Ctrl-C as the board's files are written
