@@ -9,7 +9,7 @@ holds; Ray workers, which do not read it, run frames whole and hand their upstre
 
 Who writes the store: in-process and local workers write each finished frame themselves (same machine; per-frame
 files written atomically, so a killed run keeps every finished frame); Ray workers hand records back to the driver,
-which writes them, so a cluster needs no shared filesystem for results.
+which writes them, so a cluster needs no shared filesystem for results. Both write through `worker.store_result`.
 """
 
 from __future__ import annotations
@@ -33,11 +33,10 @@ from ..execution.lifeline import exit_with_parent
 from ..pipeline import Combination
 from ..protocol import Protocol
 from ..registry.catalog import Registry
-from .frames import save
 from .jobs import Job, frame_key, labels, prepare
 from .store import ResultsStore
 from .tasks import Deliver, Executor, Progress, Result, Task, Work
-from .worker import Worker
+from .worker import Worker, store_result
 
 DEFAULT_CHUNK = 8  # frames per task: few enough to balance a small grid, enough to amortise a task's overhead
 Slot = tuple[int, str]  # (job index, frame id)
@@ -117,7 +116,7 @@ class Collector:
         fresh = [r for r in results if (r.job, r.frame_id) not in self.computed]  # a replayed frame is dropped
         for r in fresh:
             if not r.stored:
-                save(self.store, r.key, r.record, r.upstream)
+                store_result(self.store, r)
             self.plan.records[r.job, r.frame_id] = r.record
             self.computed.add((r.job, r.frame_id))
         if self.progress and fresh:

@@ -4,7 +4,7 @@ Data flows one way: dataset -> SensorFrame -> protocol -> Frame -> pipeline -> P
 `load_frame` is where the protocol meets a loaded frame, for every executor: it corrupts it (under a corruption) and
 moves it, so a corrupted record differs from a clean one only by its protocol card, which its cache key holds.
 `compute_frame` is a pure function of (job, dataset, frame id, protocol), so frames can be farmed out to workers;
-the store is the only shared state, and it is written one whole file per frame.
+the store is the only shared state, and it is written one whole file per frame (`worker.store_result`).
 
 Export, then evaluate: beside each record the store keeps what the frame's solver consumed (`runs.upstream`), keyed
 by everything before the solver. A frame whose record is missing but whose upstream is stored (a new solver, a
@@ -76,13 +76,6 @@ def compute(
             job.pipeline.resolve(stored.solver_frame(), stored.upstream)
         warm.add(SOLVER)
     return resolve_frame(job, dataset, frame_id, protocol, stored, key, read)
-
-
-def save(store: ResultsStore, key: str, record: dict[str, Any], upstream: StoredUpstream | None) -> None:
-    """Store a computed frame: its upstream first, so a record on disk always has the upstream it names."""
-    if upstream is not None:
-        store.put_upstream(record["upstream_key"], upstream.encode())
-    store.put(key, record)
 
 
 def warm_up(job: Job, dataset: Dataset, protocol: Protocol, frame_id: str, times: int) -> None:
