@@ -21,7 +21,7 @@ from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry, default_registry
 from i2pbench.runs import frames
-from i2pbench.runs.runner import run_grid
+from i2pbench.runs.executors import run_grid
 from i2pbench.runs.store import ResultsStore
 
 STAGES = {"extractor2d": "canny", "extractor3d": "depth", "matcher": "oracle"}

@@ -179,6 +179,28 @@ def run_work(
     return [{**work_plan.record(j, f), **labels(job)} for j, job in enumerate(work.jobs) for f in frame_ids]
 
 
+def run_job(
+    job: Job,
+    dataset: Dataset,
+    frame_ids: Sequence[str],
+    protocol: Protocol,
+    store: ResultsStore,
+    *,
+    overwrite: bool = False,
+    warmup: int = 1,
+    progress: Progress | None = None,
+    invocation: str = "",
+) -> list[dict[str, Any]]:
+    """One prepared combination over frames in this process, where it was prepared; one record per frame.
+
+    Stored frames are reused (and those whose upstream is stored re-solved); the warm-up runs just before the first
+    frame actually computed, so a fully cached job costs no pipeline run at all and a re-solved one warms up its
+    solver only.
+    """
+    work = Work([job], dataset, protocol, invocation, warmup, overwrite)
+    return run_work(work, frame_ids, store, InProcessExecutor(), progress)
+
+
 def _done(work_plan: Plan, job: int, frame_id: str) -> bool:
     return work_plan.same.get((job, frame_id), (job, frame_id)) in work_plan.records
 
