@@ -202,7 +202,7 @@ def _store_failed(exc: OSError, store, invocation) -> Exception:
     from ..errors import I2PBenchError
 
     marked = invocation.fail(f"{type(exc).__name__}: {exc}")
-    kept = len(list(store.frames_dir.glob("*.parquet")))
+    kept = len(store.keys())
     return I2PBenchError(
         f"{exc.filename or store.root}: {exc.strerror or exc} while storing results; invocation {invocation.id} "
         f"{'marked failed' if marked else 'could not be marked failed'}; {kept} finished frame record(s) kept in "
