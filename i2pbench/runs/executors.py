@@ -59,6 +59,11 @@ class Plan:
     def record(self, job: int, frame_id: str) -> dict[str, Any]:
         return self.records[self.same.get((job, frame_id), (job, frame_id))]
 
+    def row(self, jobs: Sequence[Job], job: int, frame_id: str) -> dict[str, Any]:
+        """The frame's record under the job's own spelling: a record is stored under the labels of the spelling that
+        computed it (`frames`), and its key, shared by equivalent spellings, may bring it back to another one."""
+        return {**self.record(job, frame_id), **labels(jobs[job])}
+
     def tasks(self, workers: int, chunk_size: int = DEFAULT_CHUNK) -> list[Task]:
         """Chunks of at most `chunk_size` frames, smaller when a job has too few frames to keep every worker busy."""
         tasks = []
@@ -171,12 +176,12 @@ def run_work(
         try:
             run_plan(work_plan, work, store, executor, progress, chunk_size)
         except KeyboardInterrupt as exc:  # the user's Ctrl-C: the workers are stopped; say what finished
-            finished = [(j, f) for j, job in enumerate(work.jobs) for f in frame_ids if _done(work_plan, j, f)]
-            records = [{**work_plan.record(j, f), **labels(work.jobs[j])} for j, f in finished]
+            finished = [(j, f) for j in range(len(work.jobs)) for f in frame_ids if _done(work_plan, j, f)]
+            records = [work_plan.row(work.jobs, j, f) for j, f in finished]
             raise Interrupted(records) from exc
     if progress and work_plan.same:
         progress(len(work_plan.same))
-    return [{**work_plan.record(j, f), **labels(job)} for j, job in enumerate(work.jobs) for f in frame_ids]
+    return [work_plan.row(work.jobs, j, f) for j in range(len(work.jobs)) for f in frame_ids]
 
 
 def run_job(
