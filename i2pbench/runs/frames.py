@@ -159,7 +159,7 @@ def _record(
 ) -> dict[str, Any]:
     T_pred, T_gt = outcome.estimate.T, (frame.T_gt if frame is not None else None)
     errors = pose_errors(T_pred, T_gt) if T_gt is not None else pose_errors(None, np.eye(4))
-    record: dict[str, Any] = {
+    return {
         "dataset": dataset.name,
         "split": dataset.split,
         "frame_id": frame_id,
@@ -185,9 +185,8 @@ def _record(
         "T_gt": (T_gt.ravel().tolist() if T_gt is not None else None),
         "stages_run": ",".join(outcome.timings),  # the stages this record's computation ran (and timed)
         "upstream_key": "",  # the stored upstream the solver consumed, once stored
+        **{f"t_{kind}_s": outcome.timings.get(kind, np.nan) for kind in STAGE_ORDER},
     }
-    record.update({f"t_{kind}_s": outcome.timings.get(kind, np.nan) for kind in STAGE_ORDER})
-    return record
 
 
 def _sequence(dataset: Dataset, frame_id: str) -> str:
