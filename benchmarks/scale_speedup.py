@@ -41,8 +41,8 @@ from i2pbench.pipeline import Combination
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry, default_registry
 from i2pbench.registry.catalog import Registry
-from i2pbench.runs.executors import Collector, Executor, LocalExecutor, Task, Work, plan
-from i2pbench.runs.runner import prepare, run_job
+from i2pbench.runs.executors import Collector, Executor, LocalExecutor, Task, Work, plan, run_job
+from i2pbench.runs.jobs import prepare
 from i2pbench.runs.store import ResultsStore
 
 KITTI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_odometry"

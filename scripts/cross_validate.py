@@ -5,7 +5,7 @@ with a 95% interval from resampling whole scenes (i2pbench.boards.crossval).
         --preset default --weights weights/fold$k.pt; done
     python scripts/cross_validate.py --folds 5 --data-root ../shared/data
 
-Reads runs/kitti-drives-test-fold{K}of{N}/frames/*.parquet (the per-frame store each fold's run wrote); every fold
+Reads the results store runs/kitti-drives-test-fold{K}of{N}/ (the per-frame records each fold's run wrote); every fold
 must be there, since a missing fold would leave its scenes out of the estimate.
 
 `--loss WEIGHTS` (a path in which `{k}` stands for the fold, e.g. weights/fold{k}.pt; without it the same weights
@@ -25,6 +25,7 @@ import pandas as pd
 from i2pbench.boards.crossval import cross_validated, scene_bootstrap
 from i2pbench.boards.leaderboard import to_markdown
 from i2pbench.data.kitti_drives import DEFAULT_SPLIT_FILE, KittiDrives
+from i2pbench.runs.store import ResultsStore
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -40,11 +41,11 @@ def main(argv: list[str] | None = None) -> int:
     suffix = "" if args.split_file == DEFAULT_SPLIT_FILE else f"-{Path(args.split_file).stem}"
     parts = []
     for k in range(1, args.folds + 1):
-        files = sorted(Path(args.runs_dir).glob(f"kitti-drives-test{suffix}-fold{k}of{args.folds}/frames/*.parquet"))
-        if not files:
+        fold = ResultsStore(Path(args.runs_dir) / f"kitti-drives-test{suffix}-fold{k}of{args.folds}", read_only=True)
+        parts.append(fold.load())
+        if parts[-1].empty:
             print(f"cross_validate: no results for fold {k}/{args.folds} under {args.runs_dir}", file=sys.stderr)
             return 1
-        parts += [pd.read_parquet(f) for f in files]
     records = pd.concat(parts, ignore_index=True).drop_duplicates(["frame_id", "combination"], keep="last")
     dataset = KittiDrives("all", {"root": args.data_root, "split_file": args.split_file})
     table = cross_validated(records, dataset.scene_of)

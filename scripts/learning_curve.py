@@ -48,6 +48,7 @@ import yaml
 
 from i2pbench.boards.leaderboard import to_markdown
 from i2pbench.data.kitti_drives import DEFAULT_SPLIT_FILE, load_split_file
+from i2pbench.runs.store import ResultsStore
 from i2pbench.weights import file_digest
 
 ARMS = ("synthetic", "scratch")
@@ -166,7 +167,7 @@ def read_board(stem: Path, work: Path) -> dict[str, object]:
     most frames have none."""
     row = pd.read_csv(stem.with_suffix(".csv")).iloc[0]
     out = {short: row[long] for long, short in COLUMNS.items()}
-    frames = pd.concat(map(pd.read_parquet, (work / "rundir" / "kitti-drives-val" / "frames").glob("*.parquet")))
+    frames = ResultsStore(work / "rundir" / "kitti-drives-val", read_only=True).load()
     mine = frames[(frames["weights"] == row["weights"]) & (frames["combination"] == row["combination"])]
     return {**out, "true_matches_total": int(mine.drop_duplicates("frame_id")["n_true_matches"].fillna(0).sum())}
 

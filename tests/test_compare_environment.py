@@ -14,6 +14,9 @@ from i2pbench.runs.invocation import Invocation
 from i2pbench.runs.store import ResultsStore
 
 ROW = {"dataset": "synthetic", "split": "test", "combination": "lsd > depth > oracle > poselib", "weights": "none"}
+# the rest of a frame's record as the store requires it (`store.REQUIRED`): one solved frame
+SCORED = {"frame_id": "00/000000", "status": "ok", "failed_component": "", "rte_m": 0.1, "rre_deg": 0.5}
+TIMED = {"geodesic_deg": 0.5, "model_size_mb": 0.0, "t_total_s": 0.2}
 BOARD = pd.DataFrame([{**ROW, "frames": 3, "Acc. (%) ↑": 100.0, "rte_mean": 0.1, "rre_mean": 0.5}])
 
 
@@ -88,10 +91,11 @@ def test_a_board_without_a_record_is_traced_to_its_runs_store_in_the_default_lay
     runs = tmp_path / "runs"
     store = ResultsStore(runs / "synthetic-test")
     old, other = _invocation(store.root, numpy="2.3.1"), _invocation(store.root, numpy="1.26.4")
-    store.put("a", {**ROW, "invocation": old})
-    store.put("b", {**ROW, "combination": "canny > depth > oracle > poselib", "invocation": other})
+    store.put("a", {**ROW, **SCORED, **TIMED, "invocation": old})
+    store.put("b", {**ROW, **SCORED, **TIMED, "combination": "canny > depth > oracle > poselib", "invocation": other})
+    store.put("c", {**ROW, **SCORED, **TIMED})  # written before records named their invocation: traces to none
     board = leaderboard.write(BOARD, runs / "leaderboards" / "synthetic-test")[0]
-    assert board_env.read(board, BOARD)["invocations"][0]["id"] == old
+    assert [i["id"] for i in board_env.read(board, BOARD)["invocations"]] == [old]
     (line,) = _compare(capsys, board, _board(tmp_path, "base", numpy="2.4.6"))
     assert "numpy versions: 2.3.1 (new) vs 2.4.6 (baseline)" in line
 

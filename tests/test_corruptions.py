@@ -24,9 +24,11 @@ from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry, default_registry
 from i2pbench.registry.listing import components_of
 from i2pbench.report.rundir import resolved
-from i2pbench.runs.runner import frame_key, prepare, run_grid, true_matches
+from i2pbench.runs.executors import run_grid
+from i2pbench.runs.jobs import frame_key, prepare
 from i2pbench.runs.store import ResultsStore
 from i2pbench.runs.upstream import StoredUpstream
+from i2pbench.scoring.metrics import true_matches
 from i2pbench.testing.frames import R_CAM_LIDAR, Scene, _image, _lidar
 from i2pbench.types import SensorFrame
 

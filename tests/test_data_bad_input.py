@@ -21,7 +21,7 @@ from i2pbench.errors import DataError
 from i2pbench.pipeline import Combination
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry
-from i2pbench.runs.runner import run_grid
+from i2pbench.runs.executors import run_grid
 from i2pbench.runs.store import ResultsStore
 
 DATA = SAMPLE_DATA

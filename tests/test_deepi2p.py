@@ -50,7 +50,7 @@ from i2pbench.grid import base_combinations, expand
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry
-from i2pbench.runs.runner import prepare
+from i2pbench.runs.jobs import prepare
 from i2pbench.runs.upstream import UPSTREAM_KINDS, StoredUpstream
 from i2pbench.scoring.metrics import true_matches
 from i2pbench.scoring.pose import pose_errors

@@ -75,7 +75,7 @@ def test_inference_thresholds_do_not_change_which_checkpoint_fits(tmp_path):
 def test_the_shipped_checkpoints_fit_the_presets_that_use_them():
     """Configs and committed weights move together: the default row and the no-exchange row get their checkpoints."""
     from i2pbench.grid import base_combinations, expand
-    from i2pbench.runs.runner import prepare
+    from i2pbench.runs.jobs import prepare
 
     registry = build_registry()
     rows = expand(base_combinations(registry, "baselines"), {}, None, registry)

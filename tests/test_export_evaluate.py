@@ -21,7 +21,7 @@ from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry, default_registry
 from i2pbench.runs import frames
-from i2pbench.runs.runner import run_grid
+from i2pbench.runs.executors import run_grid
 from i2pbench.runs.store import ResultsStore
 
 STAGES = {"extractor2d": "canny", "extractor3d": "depth", "matcher": "oracle"}
@@ -169,9 +169,9 @@ def test_a_damaged_upstream_is_set_aside_and_its_frame_run_whole(monkeypatch, tm
     damaged.write_bytes(damaged.read_bytes()[:100])  # as a power cut could leave it
     whole, real = [], frames.compute_frame
 
-    def compute_frame(job, data, frame_id, protocol):
+    def compute_frame(job, data, frame_id, protocol, up_key=None):
         whole.append(frame_id)
-        return real(job, data, frame_id, protocol)
+        return real(job, data, frame_id, protocol, up_key)
 
     monkeypatch.setattr(frames, "compute_frame", compute_frame)
     records = run_grid(registry, [Combination(TOY)], dataset, Protocol(), store, overwrite=False)
@@ -183,3 +183,25 @@ def test_a_damaged_upstream_is_set_aside_and_its_frame_run_whole(monkeypatch, tm
     stages = dict(zip(records["frame_id"], records["stages_run"], strict=True))
     assert stages.pop("bad") == "" and stages.pop(damaged_frame) == WHOLE
     assert list(stages.values()) == ["solver"]
+
+
+def test_a_frame_s_upstream_key_is_computed_once_whether_run_whole_or_re_solved(monkeypatch, tmp_path):
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    registry = build_registry((toy_plugin,))
+    dataset, store = registry.dataset("toy")("test"), ResultsStore(tmp_path)
+    keyed, real = Counter(), frames.upstream_key
+
+    def upstream_key(data, frame_id, job, protocol):
+        keyed[frame_id] += 1
+        return real(data, frame_id, job, protocol)
+
+    monkeypatch.setattr(frames, "upstream_key", upstream_key)
+    whole = run_grid(registry, [Combination(TOY)], dataset, Protocol(), store)
+    assert keyed == dict.fromkeys(whole["frame_id"], 1)  # the failed load ("bad") included
+    for path in store.frames_dir.glob("*.parquet"):  # records gone, upstreams kept: re-solved from the store
+        path.unlink()
+    keyed.clear()
+    resolved = run_grid(registry, [Combination(TOY)], dataset, Protocol(), store)
+    assert keyed == dict.fromkeys(whole["frame_id"], 1)
+    assert list(resolved["stages_run"]) == ["solver", "", "solver"]
+    assert list(resolved["upstream_key"]) == list(whole["upstream_key"])

@@ -16,8 +16,8 @@ from i2pbench.errors import DataError
 from i2pbench.pipeline import Combination
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry
-from i2pbench.runs.executors import plan
-from i2pbench.runs.runner import frame_key, prepare, run_grid
+from i2pbench.runs.executors import plan, run_grid
+from i2pbench.runs.jobs import frame_key, prepare
 from i2pbench.runs.store import ResultsStore
 
 BASE = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}

@@ -9,7 +9,7 @@ from i2pbench.commands.options import chosen_combinations, parse_data_conf
 from i2pbench.errors import PluginError
 from i2pbench.grid import base_combinations, expand, load_grid_file
 from i2pbench.registry.build import build_registry, default_registry
-from i2pbench.runs.runner import prepare
+from i2pbench.runs.jobs import prepare
 
 CLASSIC = {"extractor2d": "lsd", "extractor3d": "depth+reflectance", "matcher": "oracle", "solver": "epnp-ransac"}
 LEARNED = ("superpoint-cnn", "pointnet2", "lightglue", "epnp-ransac")

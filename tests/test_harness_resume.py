@@ -14,8 +14,8 @@ from i2pbench.boards import leaderboard
 from i2pbench.grid import base_combinations, expand
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
+from i2pbench.runs.executors import run_grid
 from i2pbench.runs.invocation import history
-from i2pbench.runs.runner import run_grid
 from i2pbench.runs.store import ResultsStore
 
 BASE = {"extractor3d": "depth+reflectance", "matcher": "oracle"}

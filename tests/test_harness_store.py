@@ -16,8 +16,9 @@ from i2pbench.boards import leaderboard
 from i2pbench.pipeline import Combination
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry
+from i2pbench.runs.executors import run_grid
 from i2pbench.runs.invocation import Invocation, history
-from i2pbench.runs.runner import frame_key, prepare, run_grid
+from i2pbench.runs.jobs import frame_key, prepare
 from i2pbench.runs.store import ResultsStore
 
 BASE = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
@@ -134,6 +135,19 @@ def test_stray_temp_files_are_ignored_and_dead_writers_temps_swept(tmp_path):
     assert list(store.load()["frame_id"]) == ["a"]
     ResultsStore(tmp_path)  # a new run opening the store
     assert not dead.exists() and live.exists()
+
+
+def test_the_store_lists_its_records_keys_only_and_a_store_never_made_reads_as_empty(tmp_path):
+    store = ResultsStore(tmp_path / "run")
+    for key, frame in (("k2", "b"), ("k1", "a")):
+        store.put(key, {**RESULT, "frame_id": frame})
+    store.put_upstream("k1", {"uv": pd.Series([1.0]).to_numpy()})
+    (store.frames_dir / f".k3.{os.getpid()}.tmp").write_bytes(b"PAR1 half written")
+    (store.frames_dir / "k4.parquet.corrupt").write_bytes(b"set aside")
+    assert store.keys() == ["k1", "k2"]
+    assert list(store.load()["frame_id"]) == ["a", "b"]  # in key order
+    absent = ResultsStore(tmp_path / "never-run", read_only=True)
+    assert absent.keys() == [] and absent.load().empty and not absent.root.exists()
 
 
 def test_the_cache_key_follows_the_resolved_config(registry):

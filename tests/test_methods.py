@@ -16,7 +16,7 @@ from i2pbench.errors import PluginError, WeightsError
 from i2pbench.grid import base_combinations, expand
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.registry.build import build_registry
-from i2pbench.runs.runner import prepare
+from i2pbench.runs.jobs import prepare
 from i2pbench.weights import file_digest, load_checkpoint, mismatch, save_checkpoint
 
 REFERENCE_ROW = "grid > first > linear > regress > truth"

@@ -6,7 +6,7 @@ from i2pbench.errors import PluginError
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry
-from i2pbench.runs.runner import run_grid
+from i2pbench.runs.executors import run_grid
 from i2pbench.runs.store import ResultsStore
 
 BASE = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}

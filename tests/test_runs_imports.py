@@ -1,5 +1,5 @@
 """The modules of `i2pbench.runs` import one another without a cycle: the worker code and the task types below, the
-executors above, the serial runner on top. Read from source with `ast`, so an import inside a function counts."""
+executors (the driver) on top. Read from source with `ast`, so an import inside a function counts."""
 
 import ast
 from pathlib import Path

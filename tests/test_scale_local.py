@@ -15,9 +15,8 @@ from i2pbench.pipeline import Combination
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry, default_registry
 from i2pbench.runs import executors
-from i2pbench.runs.executors import LocalExecutor, Plan, Task, make_executor
+from i2pbench.runs.executors import LocalExecutor, Plan, Task, make_executor, run_grid
 from i2pbench.runs.invocation import history
-from i2pbench.runs.runner import run_grid
 from i2pbench.runs.store import ResultsStore
 
 BASE = {"extractor3d": "depth", "matcher": "oracle", "solver": "epnp-ransac"}

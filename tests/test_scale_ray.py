@@ -17,8 +17,9 @@ from i2pbench.pipeline import Combination
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
 from i2pbench.runs import executors, ray_executor
+from i2pbench.runs.executors import run_grid
+from i2pbench.runs.jobs import prepare
 from i2pbench.runs.ray_executor import RayExecutor
-from i2pbench.runs.runner import prepare, run_grid
 from i2pbench.runs.store import ResultsStore
 
 ray = pytest.importorskip("ray", reason="the ray extra is not installed (pip install 'i2pbench[ray]')")

@@ -10,7 +10,8 @@ from i2pbench.errors import PluginError, WeightsError
 from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry
-from i2pbench.runs.runner import prepare, run_grid
+from i2pbench.runs.executors import run_grid
+from i2pbench.runs.jobs import prepare
 from i2pbench.runs.store import ResultsStore
 from i2pbench.training.config import TrainConfig
 from i2pbench.training.lineage import training_meta

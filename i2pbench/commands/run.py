@@ -202,7 +202,7 @@ def _store_failed(exc: OSError, store, invocation) -> Exception:
     from ..errors import I2PBenchError
 
     marked = invocation.fail(f"{type(exc).__name__}: {exc}")
-    kept = len(list(store.frames_dir.glob("*.parquet")))
+    kept = len(store.keys())
     return I2PBenchError(
         f"{exc.filename or store.root}: {exc.strerror or exc} while storing results; invocation {invocation.id} "
         f"{'marked failed' if marked else 'could not be marked failed'}; {kept} finished frame record(s) kept in "
@@ -341,25 +341,12 @@ class _Bar:
 
 
 def _run_protocol(registry, combinations, dataset, frame_ids, protocol, store, invocation, args, executor, progress):
-    """One protocol's grid, serially in this process or on the executor's workers."""
-    from ..runs import executors
-    from ..runs.runner import run_grid
+    """One protocol's grid, serially in this process (no executor: its learned stages on --device) or on the
+    executor's workers (each choosing its own device)."""
+    from ..runs.executors import run_grid
 
-    if executor is not None:
-        return executors.run_grid(
-            registry, combinations, dataset, protocol, store, executor, weights=args.weights, frame_ids=frame_ids,
-            overwrite=args.overwrite, progress=progress, invocation=invocation, chunk_size=args.chunk_size,
-        )  # fmt: skip
     return run_grid(
-        registry,
-        combinations,
-        dataset,
-        protocol,
-        store,
-        weights=args.weights,
-        device=args.device,
-        frame_ids=frame_ids,
-        overwrite=args.overwrite,
-        progress=progress,
-        invocation=invocation,
-    )
+        registry, combinations, dataset, protocol, store, executor, weights=args.weights, device=args.device,
+        frame_ids=frame_ids, overwrite=args.overwrite, progress=progress, invocation=invocation,
+        chunk_size=args.chunk_size,
+    )  # fmt: skip

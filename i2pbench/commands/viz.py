@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from ..registry.build import default_registry
     from ..report import overlay
     from ..runs.environment import fix_threads
-    from ..runs.runner import prepare
+    from ..runs.jobs import prepare
     from ..scoring.pose import pose_errors
 
     if args.out and Path(args.out).suffix.lower() != ".png":  # checked before any frame is loaded or run

@@ -16,10 +16,10 @@ from pathlib import Path
 from typing import Any
 
 import pandas as pd
-import pyarrow.parquet as pq
 
 from ..boards.leaderboard import GROUP
 from .invocation import history
+from .store import ResultsStore
 
 SUFFIX = ".env.json"
 GENERATOR = "generator_version"  # of the synthetic dataset, in its identity
@@ -113,16 +113,14 @@ def _store_of(board_path: Path) -> Path | None:
 
 def _invocations_of(store: Path, board: pd.DataFrame) -> set[str]:
     """The invocations that computed the store's records of the board's rows, read without touching the store."""
-    wanted = set(board[GROUP].astype(str).itertuples(index=False, name=None)) if set(GROUP) <= set(board) else set()
-    ids = set()
-    for path in (store / "frames").glob("*.parquet"):
-        try:
-            row = pq.read_table(path, columns=[*GROUP, "invocation"]).to_pylist()[0]
-        except Exception:  # unreadable, or written before records named their invocation: nothing to trace
-            continue
-        if tuple(str(row[k]) for k in GROUP) in wanted and row["invocation"]:
-            ids.add(row["invocation"])
-    return ids
+    if not set(GROUP) <= set(board):
+        return set()
+    records = ResultsStore(store, read_only=True).load()
+    if "invocation" not in records:  # records written before they named their invocation: nothing to trace
+        return set()
+    wanted = set(board[GROUP].astype(str).itertuples(index=False, name=None))
+    rows = records[[*GROUP, "invocation"]].itertuples(index=False, name=None)
+    return {inv for *group, inv in rows if isinstance(inv, str) and inv and tuple(map(str, group)) in wanted}
 
 
 def versions(rec: dict[str, Any]) -> dict[str, set[str]]:

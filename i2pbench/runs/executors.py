@@ -9,7 +9,7 @@ holds; Ray workers, which do not read it, run frames whole and hand their upstre
 
 Who writes the store: in-process and local workers write each finished frame themselves (same machine; per-frame
 files written atomically, so a killed run keeps every finished frame); Ray workers hand records back to the driver,
-which writes them, so a cluster needs no shared filesystem for results.
+which writes them, so a cluster needs no shared filesystem for results. Both write through `worker.store_result`.
 """
 
 from __future__ import annotations
@@ -33,11 +33,10 @@ from ..execution.lifeline import exit_with_parent
 from ..pipeline import Combination
 from ..protocol import Protocol
 from ..registry.catalog import Registry
-from .frames import save
 from .jobs import Job, frame_key, labels, prepare
 from .store import ResultsStore
 from .tasks import Deliver, Executor, Progress, Result, Task, Work
-from .worker import Worker
+from .worker import Worker, store_result
 
 DEFAULT_CHUNK = 8  # frames per task: few enough to balance a small grid, enough to amortise a task's overhead
 Slot = tuple[int, str]  # (job index, frame id)
@@ -59,6 +58,11 @@ class Plan:
 
     def record(self, job: int, frame_id: str) -> dict[str, Any]:
         return self.records[self.same.get((job, frame_id), (job, frame_id))]
+
+    def row(self, jobs: Sequence[Job], job: int, frame_id: str) -> dict[str, Any]:
+        """The frame's record under the job's own spelling: a record is stored under the labels of the spelling that
+        computed it (`frames`), and its key, shared by equivalent spellings, may bring it back to another one."""
+        return {**self.record(job, frame_id), **labels(jobs[job])}
 
     def tasks(self, workers: int, chunk_size: int = DEFAULT_CHUNK) -> list[Task]:
         """Chunks of at most `chunk_size` frames, smaller when a job has too few frames to keep every worker busy."""
@@ -117,7 +121,7 @@ class Collector:
         fresh = [r for r in results if (r.job, r.frame_id) not in self.computed]  # a replayed frame is dropped
         for r in fresh:
             if not r.stored:
-                save(self.store, r.key, r.record, r.upstream)
+                store_result(self.store, r)
             self.plan.records[r.job, r.frame_id] = r.record
             self.computed.add((r.job, r.frame_id))
         if self.progress and fresh:
@@ -172,12 +176,34 @@ def run_work(
         try:
             run_plan(work_plan, work, store, executor, progress, chunk_size)
         except KeyboardInterrupt as exc:  # the user's Ctrl-C: the workers are stopped; say what finished
-            finished = [(j, f) for j, job in enumerate(work.jobs) for f in frame_ids if _done(work_plan, j, f)]
-            records = [{**work_plan.record(j, f), **labels(work.jobs[j])} for j, f in finished]
+            finished = [(j, f) for j in range(len(work.jobs)) for f in frame_ids if _done(work_plan, j, f)]
+            records = [work_plan.row(work.jobs, j, f) for j, f in finished]
             raise Interrupted(records) from exc
     if progress and work_plan.same:
         progress(len(work_plan.same))
-    return [{**work_plan.record(j, f), **labels(job)} for j, job in enumerate(work.jobs) for f in frame_ids]
+    return [work_plan.row(work.jobs, j, f) for j in range(len(work.jobs)) for f in frame_ids]
+
+
+def run_job(
+    job: Job,
+    dataset: Dataset,
+    frame_ids: Sequence[str],
+    protocol: Protocol,
+    store: ResultsStore,
+    *,
+    overwrite: bool = False,
+    warmup: int = 1,
+    progress: Progress | None = None,
+    invocation: str = "",
+) -> list[dict[str, Any]]:
+    """One prepared combination over frames in this process, where it was prepared; one record per frame.
+
+    Stored frames are reused (and those whose upstream is stored re-solved); the warm-up runs just before the first
+    frame actually computed, so a fully cached job costs no pipeline run at all and a re-solved one warms up its
+    solver only.
+    """
+    work = Work([job], dataset, protocol, invocation, warmup, overwrite)
+    return run_work(work, frame_ids, store, InProcessExecutor(), progress)
 
 
 def _done(work_plan: Plan, job: int, frame_id: str) -> bool:

@@ -4,7 +4,7 @@ Data flows one way: dataset -> SensorFrame -> protocol -> Frame -> pipeline -> P
 `load_frame` is where the protocol meets a loaded frame, for every executor: it corrupts it (under a corruption) and
 moves it, so a corrupted record differs from a clean one only by its protocol card, which its cache key holds.
 `compute_frame` is a pure function of (job, dataset, frame id, protocol), so frames can be farmed out to workers;
-the store is the only shared state, and it is written one whole file per frame.
+the store is the only shared state, and it is written one whole file per frame (`worker.store_result`).
 
 Export, then evaluate: beside each record the store keeps what the frame's solver consumed (`runs.upstream`), keyed
 by everything before the solver. A frame whose record is missing but whose upstream is stored (a new solver, a
@@ -59,29 +59,23 @@ def compute(
     reuse_upstream: bool = True,
 ) -> Computed:
     """The frame's record: re-solved from its stored upstream when the store has it and the solver can run alone,
-    else from the whole pipeline. The first frame each way is preceded by `warmup` untimed runs (`warm` remembers)."""
-    stored, read = None, 0.0
+    else from the whole pipeline. The first frame each way is preceded by `warmup` untimed runs (`warm` remembers).
+    The upstream key is computed here once, for the look-up and the record alike."""
+    stored, read, key = None, 0.0, upstream_key(dataset, frame_id, job, protocol)
     if store is not None and reuse_upstream and job.pipeline.resolvable:
         start = time.perf_counter()
-        stored = store.get_upstream(upstream_key(dataset, frame_id, job, protocol), StoredUpstream.decode)
+        stored = store.get_upstream(key, StoredUpstream.decode)
         read = time.perf_counter() - start
     if stored is None:
         if WHOLE not in warm and warmup:
             warm_up(job, dataset, protocol, frame_id, warmup)
         warm |= {WHOLE, SOLVER}
-        return compute_frame(job, dataset, frame_id, protocol)
+        return compute_frame(job, dataset, frame_id, protocol, key)
     if SOLVER not in warm:
         for _ in range(warmup):
             job.pipeline.resolve(stored.solver_frame(), stored.upstream)
         warm.add(SOLVER)
-    return resolve_frame(job, dataset, frame_id, protocol, stored, read)
-
-
-def save(store: ResultsStore, key: str, record: dict[str, Any], upstream: StoredUpstream | None) -> None:
-    """Store a computed frame: its upstream first, so a record on disk always has the upstream it names."""
-    if upstream is not None:
-        store.put_upstream(record["upstream_key"], upstream.encode())
-    store.put(key, record)
+    return resolve_frame(job, dataset, frame_id, protocol, stored, key, read)
 
 
 def warm_up(job: Job, dataset: Dataset, protocol: Protocol, frame_id: str, times: int) -> None:
@@ -105,9 +99,10 @@ def load_frame(dataset: Dataset, frame_id: str, protocol: Protocol) -> Frame:
     return protocol.apply(dataset.load(frame_id))
 
 
-def compute_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> Computed:
+def compute_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol, up_key: str | None = None) -> Computed:
     """Load, run and score one frame; a dataset error becomes a failed record naming the file, while a failing
-    corruption stops the run (a failed row would blame the method for the benchmark's fault)."""
+    corruption stops the run (a failed row would blame the method for the benchmark's fault). `up_key` is the frame's
+    `upstream_key`, computed by the caller once per frame; None computes it here."""
     start = time.perf_counter()
     try:
         frame = load_frame(dataset, frame_id, protocol)
@@ -123,16 +118,23 @@ def compute_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol)
     outcome = job.pipeline.run(frame)
     record = _record(job, dataset, frame_id, protocol, outcome, frame, loaded - start, time.perf_counter() - start)
     upstream = StoredUpstream.of(frame, outcome)
-    record["upstream_key"] = upstream_key(dataset, frame_id, job, protocol) if upstream is not None else ""
+    if upstream is not None:
+        record["upstream_key"] = up_key or upstream_key(dataset, frame_id, job, protocol)
     return Computed(record, upstream)
 
 
 def resolve_frame(
-    job: Job, dataset: Dataset, frame_id: str, protocol: Protocol, stored: StoredUpstream, read_s: float = 0.0
+    job: Job,
+    dataset: Dataset,
+    frame_id: str,
+    protocol: Protocol,
+    stored: StoredUpstream,
+    up_key: str,
+    read_s: float = 0.0,
 ) -> Computed:
     """Run the solver alone on a frame's stored upstream and score it; the record is a whole run's, but
     `stages_run` says "solver", `t_load_s` is the upstream's read and the upstream stages' times are the stored ones
-    (so `t_total_s` still estimates a whole frame's latency)."""
+    (so `t_total_s` still estimates a whole frame's latency). `up_key` is the key `stored` was read under."""
     start = time.perf_counter()
     frame = stored.solver_frame()
     outcome = job.pipeline.resolve(frame, stored.upstream)
@@ -141,7 +143,7 @@ def resolve_frame(
     outcome = dataclasses.replace(outcome, timings={**timings, **outcome.timings})
     wall = read_s + time.perf_counter() - start
     record = _record(job, dataset, frame_id, protocol, outcome, frame, read_s, wall)
-    record.update(stages_run=ran, upstream_key=upstream_key(dataset, frame_id, job, protocol))
+    record.update(stages_run=ran, upstream_key=up_key)
     return Computed(record)
 
 
@@ -157,7 +159,7 @@ def _record(
 ) -> dict[str, Any]:
     T_pred, T_gt = outcome.estimate.T, (frame.T_gt if frame is not None else None)
     errors = pose_errors(T_pred, T_gt) if T_gt is not None else pose_errors(None, np.eye(4))
-    record: dict[str, Any] = {
+    return {
         "dataset": dataset.name,
         "split": dataset.split,
         "frame_id": frame_id,
@@ -183,9 +185,8 @@ def _record(
         "T_gt": (T_gt.ravel().tolist() if T_gt is not None else None),
         "stages_run": ",".join(outcome.timings),  # the stages this record's computation ran (and timed)
         "upstream_key": "",  # the stored upstream the solver consumed, once stored
+        **{f"t_{kind}_s": outcome.timings.get(kind, np.nan) for kind in STAGE_ORDER},
     }
-    record.update({f"t_{kind}_s": outcome.timings.get(kind, np.nan) for kind in STAGE_ORDER})
-    return record
 
 
 def _sequence(dataset: Dataset, frame_id: str) -> str:

@@ -114,7 +114,7 @@ class ResultsStore:
             self._sweep_dead_temps()
 
     def path(self, key: str) -> Path:
-        return self.frames_dir / f"{key}.parquet"
+        return self.frames_dir / f"{key}{RECORD_SUFFIX}"
 
     def put(self, key: str, record: dict[str, Any]) -> None:
         """Store one frame's record: pyarrow directly, uncompressed, as pandas' writer costs ~5x more per frame."""
@@ -188,10 +188,14 @@ class ResultsStore:
             self._set_aside(path, exc)
             return None
 
+    def keys(self) -> list[str]:
+        """The keys of the stored records, sorted (not temps, set-asides or upstreams); none for a store not made."""
+        return sorted(p.stem for p in self.frames_dir.glob(f"*{RECORD_SUFFIX}"))
+
     def load(self, keys: list[str] | None = None) -> pd.DataFrame:
-        """All records (or those with the given keys that exist and are readable), one row per frame."""
-        if keys is None:
-            keys = sorted(p.stem for p in self.frames_dir.glob("*.parquet"))  # not temps (.tmp), set-asides (.corrupt)
+        """All records (or those with the given keys that exist and are readable), one row per frame: the reader
+        of the whole store for everyone (evaluate, board tracing, scripts), each record checked as `get` does."""
+        keys = self.keys() if keys is None else keys
         return pd.DataFrame([r for r in (self.get(k) for k in keys) if r is not None])
 
     def _set_aside(self, path: Path, exc: Exception) -> None:

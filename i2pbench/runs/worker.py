@@ -4,16 +4,18 @@ A worker receives the `Work` once, pins its thread counts (when asked, so that N
 oversubscribe them), moves the pipelines to its device, and then, task by task, computes each frame: re-solved from
 its stored upstream when it reads the store and the store has one, else run whole, the job warmed up before its
 first frame in this worker. A worker that reads the store also writes each finished frame to it; one that does not
-(a Ray actor) hands the record and its upstream back for the driver to store.
+(a Ray actor) hands the record and its upstream back for the driver to store. Either way `store_result` writes it:
+the store's one writer of frames.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Iterator
 
 from .environment import fix_threads
-from .frames import compute, save
+from .frames import compute
 from .store import ResultsStore
 from .tasks import Result, Task, Work
 
@@ -31,6 +33,15 @@ def pin_threads(threads: int) -> int:
     for name in THREAD_ENV:
         os.environ[name] = str(threads)
     return fix_threads(threads)
+
+
+def store_result(store: ResultsStore, result: Result) -> Result:
+    """Write a computed frame to the store, its upstream first (so a record on disk always has the upstream it
+    names); the result comes back marked stored, without the upstream it no longer needs to carry."""
+    if result.upstream is not None:
+        store.put_upstream(result.record["upstream_key"], result.upstream.encode())
+    store.put(result.key, result.record)
+    return dataclasses.replace(result, stored=True, upstream=None)
 
 
 class Worker:
@@ -59,8 +70,5 @@ class Worker:
         for frame_id, key in zip(task.frame_ids, task.keys, strict=True):
             computed = compute(job, w.dataset, frame_id, w.protocol, self.store, warm, w.warmup, not w.overwrite)
             record = {**computed.record, "invocation": w.invocation}
-            if self.store is None:
-                yield Result(task.job, frame_id, key, record, False, computed.upstream)
-                continue
-            save(self.store, key, record, computed.upstream)
-            yield Result(task.job, frame_id, key, record, True)
+            result = Result(task.job, frame_id, key, record, False, computed.upstream)
+            yield result if self.store is None else store_result(self.store, result)

@@ -19,7 +19,9 @@ from conftest import SAMPLE_DATA, sample
 from i2pbench.pipeline import Combination
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
-from i2pbench.runs.runner import prepare, run_frame, run_job
+from i2pbench.runs.executors import run_job
+from i2pbench.runs.frames import run_frame
+from i2pbench.runs.jobs import prepare
 from i2pbench.runs.store import ResultsStore
 
 KITTI = SAMPLE_DATA / "kitti_odometry"
