@@ -263,6 +263,7 @@ class Recorded(torch.nn.Module):
 
 @contextlib.contextmanager
 def encoders_replaced(net: torch.nn.Module, outputs: dict[str, object]):
+    """net with the named submodules answering `outputs` while inside; the modules are given back on leaving."""
     kept = {name: getattr(net, name) for name in outputs}
     for name, output in outputs.items():
         setattr(net, name, Recorded(output))
