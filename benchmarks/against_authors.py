@@ -10,16 +10,25 @@ Prints per stage the medians and ours / authors'.
 
     .venv/bin/python benchmarks/against_authors.py --method edgeregnet --checkout /work/peers/EdgeRegNet \
         [--threads 1 2] [--repeat 2] [--keypoints 3000] [--json OUT.json]
+    .venv/bin/python benchmarks/against_authors.py --method corri2p --checkout /work/peers/CorrI2P [--points 40960]
+    .venv/bin/python benchmarks/against_authors.py --method deepi2p --checkout /work/peers/DeepI2P [--points 20480]
 
 A method is one entry of METHODS: a function (checkout, args) -> Pair, the stages both sides split alike, in order.
+CorrI2P and DeepI2P are built by their reference tools (tools/reference/*.py, with those tools' CPU stand-in of the
+authors' CUDA index_max, so the authors' `points` stage includes a Python loop their GPU would not run) and split as
+image encoder, point encoder and the rest (exchange and heads, on the encoders' outputs computed once).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import copy
 import functools
+import importlib.util
 import json
 import os
+import random
 import statistics
 import sys
 import time
@@ -33,6 +42,7 @@ import numpy as np
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("I2PBENCH_SAMPLE_DATA") or ROOT.parent / "shared" / "data")
 Stages = dict[str, Callable[[], object]]  # stage name -> a call running it on inputs computed once
 
 
@@ -220,7 +230,7 @@ def edgeregnet(checkout: Path, args: argparse.Namespace) -> Pair:
     from edgeregnet_official import stage_runs  # this folder is on sys.path when the script runs
     from i2pbench_edgeregnet.reference import recipe_state, reference_frame
 
-    folder = Path(args.reference)
+    folder = Path(args.reference or os.environ.get("I2PBENCH_EDGEREGNET_REFERENCE", DATA / "edgeregnet_reference"))
     state, digest = recipe_state(folder)
     if digest != (folder / "weights.sha256").read_text().split()[0]:
         raise SystemExit(f"{folder}: the regenerated weights do not match weights.sha256")
@@ -236,18 +246,177 @@ def edgeregnet(checkout: Path, args: argparse.Namespace) -> Pair:
     return Pair(authors, renamed, check)
 
 
-METHODS: dict[str, Callable[[Path, argparse.Namespace], Pair]] = {"edgeregnet": edgeregnet}
-REFERENCE = ROOT.parent / "shared" / "data" / "edgeregnet_reference"
+# ---- CorrI2P and DeepI2P: the same SO-Net / ResNet-34 layout, split where both forwards call their encoders
+
+
+class Recorded(torch.nn.Module):
+    """an encoder's output computed once, standing in for the encoder while the rest of the forward is timed
+    (a shallow copy each call: a forward may add keys to the dict it gets)."""
+
+    def __init__(self, output: object) -> None:
+        super().__init__()
+        self.output = output
+
+    def forward(self, *_: object) -> object:
+        return copy.copy(self.output)
+
+
+@contextlib.contextmanager
+def encoders_replaced(net: torch.nn.Module, outputs: dict[str, object]):
+    """net with the named submodules answering `outputs` while inside; the modules are given back on leaving."""
+    kept = {name: getattr(net, name) for name in outputs}
+    for name, output in outputs.items():
+        setattr(net, name, Recorded(output))
+    try:
+        yield
+    finally:
+        for name, module in kept.items():
+            setattr(net, name, module)
+
+
+def encoder_split(
+    net: torch.nn.Module, encoders: tuple[str, str], image: tuple, points: tuple, forward: tuple
+) -> Stages:
+    """net's forward as image encoder, point encoder, and the rest (`exchange`: the exchange between the two and the
+    heads) with the named encoders (image, points) replaced by their outputs, computed here once."""
+    image_encoder, point_encoder = (getattr(net, name) for name in encoders)
+    with torch.inference_mode():
+        recorded = dict(zip(encoders, (image_encoder(*image), point_encoder(*points)), strict=True))
+
+    def exchange():
+        with encoders_replaced(net, recorded):
+            return net(*forward)
+
+    return {"image": lambda: image_encoder(*image), "points": lambda: point_encoder(*points), "exchange": exchange}
+
+
+def final_errors(sides: dict[str, Stages], named: dict[str, Callable], outputs: dict[str, np.ndarray]) -> dict:
+    """each side's split forward on the reference inputs: its outputs (named by `named[side]`) against the recorded."""
+    errors = {}
+    with torch.inference_mode():
+        for side, stages in sides.items():
+            for name, tensor in named[side](stages["exchange"]()).items():
+                errors[f"{side} {name}"] = relative(tensor[0], outputs[name])
+    return errors
+
+
+def reference_tool(name: str) -> types.ModuleType:
+    """tools/reference/<name>.py, the script that built the method's reference set from the authors' code."""
+    spec = importlib.util.spec_from_file_location(f"reference_{name}", ROOT / "tools" / "reference" / f"{name}.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    return tool
+
+
+def reference_set(folder: Path) -> tuple[dict, dict[str, np.ndarray], dict[str, np.ndarray]]:
+    meta = json.loads((folder / "meta.json").read_text())
+    with np.load(folder / "inputs.npz") as inputs, np.load(folder / "outputs.npz") as outputs:
+        return meta, dict(inputs), dict(outputs)
+
+
+def require(checkout: Path, file: str, method: str) -> None:
+    if not (checkout / file).is_file():
+        raise SystemExit(f"{checkout}: no {file}; --checkout must be a {method} checkout")
+
+
+def corri2p(checkout: Path, args: argparse.Namespace) -> Pair:
+    """CorrI2P's official size against the authors' CorrI2P network (network.py), the reference set's recipe
+    weights; timed on the set's frame prepared by the reference tool at `--points` (0: options.py's 40,960)."""
+    from i2pbench_corri2p.official.checkpoint import dropped, ours
+    from i2pbench_corri2p.official.network import CorrI2PNet
+    from i2pbench_corri2p.official.reference import NETWORK_INPUTS, image_tensor
+    from i2pbench_edgeregnet.reference import recipe_value
+
+    require(checkout, "network.py", "CorrI2P")
+    tool, folder = reference_tool("corri2p"), Path(args.reference or ROOT / "tests/data/reference/corri2p")
+    meta, recorded, outputs = reference_set(folder)
+    shapes = json.loads((folder / "state_dict_shapes.json").read_text())
+    state = {k: torch.from_numpy(recipe_value(k, tuple(s), meta["salt"])) for k, s in shapes.items()}
+    authors = tool.import_authors(checkout)
+    mine = CorrI2PNet(meta["nodes"], tuple(recorded["image"].shape[:2])).eval()
+    mine.load_state_dict({ours(k): v for k, v in state.items() if not dropped(k)})
+
+    def sides(inputs: dict[str, np.ndarray]) -> dict[str, Stages]:
+        opt = authors["options"].Options()
+        opt.input_pt_num = inputs["pc"].shape[1]  # their encoder's node mask is built for that many points
+        theirs = authors["network"].CorrI2P(opt).eval()
+        theirs.load_state_dict(state)
+        t = {k: torch.from_numpy(inputs[k])[None] for k in NETWORK_INPUTS}
+        image = image_tensor(inputs["image"])
+        points = (t["pc"], t["intensity"], t["sn"], t["node_a"], t["node_b"])
+        forward = (*points[:3], image, *points[3:])
+        return {
+            "authors": encoder_split(theirs, ("img_encoder", "pc_encoder"), (image,), points, forward),
+            "ours": encoder_split(mine, ("encoder2d", "encoder3d"), (image,), points, forward),
+        }
+
+    names = ("img_feature", "pc_feature", "img_score", "pc_score")
+    named = {"authors": lambda out: dict(zip(names, out, strict=True)), "ours": lambda out: {k: out[k] for k in names}}
+    check = functools.partial(final_errors, sides(recorded), named, {k: outputs[k] for k in names})
+    n = args.points or authors["options"].Options().input_pt_num
+    np.random.seed(meta["seed"])  # the tool's own seeding, as its main() does
+    random.seed(meta["seed"])
+    inputs = tool.prepare(DATA / meta["frame"], meta["frame_index"], n, meta["nodes"])
+    timed = sides(inputs)
+    return Pair(timed["authors"], timed["ours"], check)
+
+
+def deepi2p(checkout: Path, args: argparse.Namespace) -> Pair:
+    """DeepI2P's official size against the authors' KeypointDetector (models/networks_united.py), the reference
+    set's recipe weights; timed on the set's frame prepared by the reference tool at `--points` (0: their 20,480)."""
+    from i2pbench_deepi2p.official.network import DeepI2PNetwork
+    from i2pbench_deepi2p.official.reference import INPUTS
+    from i2pbench_deepi2p.official.weights import to_network
+
+    require(checkout, "models/networks_united.py", "DeepI2P")
+    tool, folder = reference_tool("deepi2p"), Path(args.reference or ROOT / "tests/data/reference/deepi2p")
+    meta, recorded, outputs = reference_set(folder)
+
+    def authors_network(n: int) -> tuple[torch.nn.Module, object]:
+        model, opt, _ = tool.import_authors(checkout, n)  # their encoder's node mask is built for n points
+        _, digest = tool.seeded(model, meta["salt"])
+        if digest != (folder / "weights.sha256").read_text().split()[0]:
+            raise SystemExit(f"{folder}: the regenerated weights do not match weights.sha256")
+        return model.eval(), opt
+
+    theirs, _ = authors_network(meta["n"])
+    mine = DeepI2PNetwork(tuple(recorded["img"].shape[1:]))
+    mine.load_state_dict(to_network(theirs.state_dict(), mine.state_dict(), f"{folder} (regenerated)"))
+    mine.eval()
+
+    def sides(net: torch.nn.Module, inputs: dict[str, np.ndarray]) -> dict[str, Stages]:
+        batch = tuple(torch.from_numpy(inputs[k])[None] for k in INPUTS)
+        split = functools.partial(
+            encoder_split, encoders=("img_encoder", "pc_encoder"), image=batch[5:], points=batch[:5], forward=batch
+        )
+        return {"authors": split(net), "ours": split(mine)}
+
+    names = ("coarse_scores", "fine_scores")
+    named = {"authors": lambda out: dict(zip(names, out, strict=True)), "ours": lambda out: {k: out[k] for k in names}}
+    check = functools.partial(final_errors, sides(theirs, recorded), named, {k: outputs[k] for k in names})
+    n = args.points or sys.modules["kitti.options"].Options().input_pt_num
+    big, opt = authors_network(n)
+    inputs = tool.prepare(DATA / meta["frame"], meta["frame_index"], opt, np.random.default_rng(meta["seed"]))
+    timed = sides(big, inputs)
+    return Pair(timed["authors"], timed["ours"], check)
+
+
+METHODS: dict[str, Callable[[Path, argparse.Namespace], Pair]] = {
+    "edgeregnet": edgeregnet,
+    "corri2p": corri2p,
+    "deepi2p": deepi2p,
+}
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--method", required=True, choices=sorted(METHODS))
     parser.add_argument("--checkout", required=True, type=Path, help="the authors' code, e.g. /work/peers/EdgeRegNet")
-    parser.add_argument("--reference", default=os.environ.get("I2PBENCH_EDGEREGNET_REFERENCE", REFERENCE))
+    parser.add_argument("--reference", help="the method's reference set (default: its set in the repo or shared data)")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--repeat", type=int, default=2)
-    parser.add_argument("--keypoints", type=int, default=3000, help="a side; 0: the reference set's own")
+    parser.add_argument("--keypoints", type=int, default=3000, help="EdgeRegNet, a side; 0: the reference set's own")
+    parser.add_argument("--points", type=int, default=0, help="CorrI2P, DeepI2P: cloud size; 0: the authors' options")
     parser.add_argument("--json", type=Path, help="write every frame's times and load here")
     args = parser.parse_args(argv)
     print(f"torch {torch.__version__}; load {load_average()}; building {args.method} from {args.checkout}", flush=True)
@@ -258,7 +427,7 @@ def main(argv: list[str] | None = None) -> int:
     if any(v > 1e-4 for v in errors.values()):
         print("the two sides do not compute the reference function: not timed", file=sys.stderr)
         return 1
-    report = {"method": args.method, "keypoints": args.keypoints, "check": errors, "threads": {}}
+    report = {"method": args.method, "keypoints": args.keypoints, "points": args.points, "check": errors, "threads": {}}
     for threads in args.threads:
         frames = measure(pair, threads, args.repeat)
         report["threads"][threads] = {"frames": frames, "table": print_table(threads, frames)}

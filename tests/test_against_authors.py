@@ -1,14 +1,22 @@
 """benchmarks/against_authors.py's own pieces (its timing needs the authors' checkout and minutes, so it is run by
 hand, docs/performance.md): the frame at the authors' sizes keeps the reference set's cloud and canvas and draws
-its keypoints inside them; a folder that is not an EdgeRegNet checkout is refused by name."""
+its keypoints inside them; a folder that is not the method's checkout is refused by name; the encoder split runs
+the forward on the encoders' recorded outputs and gives the encoders back; and, where a checkout is named by its
+environment variable, a tiny CorrI2P / DeepI2P run checks both sides against the reference set and times them."""
 
+import json
+import os
+import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
+from conftest import sample
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "against_authors.py"
+sys.path.insert(0, str(SCRIPT.parent))
 import against_authors  # noqa: E402
 
 
@@ -39,3 +47,72 @@ def test_authors_sizes_zero_keeps_the_recorded_keypoints(recorded):
 def test_a_folder_without_their_model_is_refused(tmp_path):
     with pytest.raises(SystemExit, match="no models/cali_glue.py"):
         against_authors.import_authors_edgeregnet(tmp_path)
+
+
+def test_the_table_holds_every_official_method_with_the_authors_code_at_hand():
+    assert set(against_authors.METHODS) == {"edgeregnet", "corri2p", "deepi2p"}
+
+
+@pytest.mark.parametrize(("method", "file"), [("corri2p", "network.py"), ("deepi2p", "models/networks_united.py")])
+def test_a_folder_without_the_methods_network_is_refused(method, file, tmp_path):
+    args = against_authors.argparse.Namespace(reference=None, points=0)
+    with pytest.raises(SystemExit, match=f"{tmp_path}: no {file}; --checkout must be a"):
+        against_authors.METHODS[method](tmp_path, args)
+
+
+class TwoEncoders(torch.nn.Module):
+    """a forward reading two encoders once each, as CorrI2P's and DeepI2P's do; the point encoder gives a dict the
+    forward adds to, as DeepI2P's forward adds to its encoder's dict."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.image_encoder = torch.nn.Linear(2, 2, bias=False)
+        self.point_encoder = torch.nn.Linear(2, 2, bias=False)
+        with torch.no_grad():
+            self.image_encoder.weight.copy_(torch.tensor([[1.0, 0.0], [0.0, 2.0]]))
+            self.point_encoder.weight.copy_(torch.tensor([[0.0, 3.0], [1.0, 0.0]]))
+
+    def forward(self, image, points):
+        out = {"p": self.point_encoder(points)}
+        out |= {"sum": out["p"] + self.image_encoder(image)}
+        return out
+
+
+def test_the_encoder_split_runs_the_rest_on_the_encoders_outputs_and_gives_them_back():
+    net = TwoEncoders()
+    image, points = torch.tensor([1.0, 1.0]), torch.tensor([2.0, 5.0])
+    stages = against_authors.encoder_split(
+        net, ("image_encoder", "point_encoder"), (image,), (points,), (torch.zeros(2), torch.zeros(2))
+    )
+    assert list(stages) == ["image", "points", "exchange"]
+    assert stages["image"]().tolist() == [1.0, 2.0] and stages["points"]().tolist() == [15.0, 2.0]
+    for _ in range(2):  # the recorded outputs, not the zeros the forward is handed; the dict is not grown
+        out = stages["exchange"]()
+        assert out["sum"].tolist() == [16.0, 4.0] and list(out) == ["p", "sum"]
+    assert isinstance(net.image_encoder, torch.nn.Linear) and isinstance(net.point_encoder, torch.nn.Linear)
+    assert net(torch.zeros(2), torch.zeros(2))["sum"].tolist() == [0.0, 0.0]
+
+
+CHECKOUTS = {"corri2p": ("I2PBENCH_CORRI2P_CHECKOUT", 2048), "deepi2p": ("I2PBENCH_DEEPI2P_CHECKOUT", 1024)}
+
+
+@pytest.mark.parametrize("method", sorted(CHECKOUTS))
+def test_a_tiny_run_checks_both_sides_against_the_reference_set_then_times_them(method, tmp_path):
+    variable, points = CHECKOUTS[method]
+    checkout = os.environ.get(variable, "")
+    if not checkout:
+        pytest.skip(f"{variable} is not set: the path of the authors' {method} checkout")
+    sample("kitti_odometry")  # the timed frame is the reference set's, prepared again at --points
+    out = tmp_path / "run.json"
+    argv = ["--method", method, "--checkout", checkout, "--points", str(points), "--threads", "1", "--repeat", "1"]
+    run = subprocess.run([sys.executable, str(SCRIPT), *argv, "--json", str(out)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr[-2000:]
+    report = json.loads(out.read_text())
+    assert len(report["check"]) >= 4 and max(report["check"].values()) <= 1e-4
+    assert {k.split()[0] for k in report["check"]} == {"authors", "ours"}
+    table = report["threads"]["1"]["table"]
+    assert list(table) == ["image", "points", "exchange", "frame"]
+    for name in ("image", "points", "exchange"):  # wall and CPU seconds, each side, and their ratio
+        row = table[name]
+        assert min(*row["authors"], *row["ours"]) > 0
+        assert row["ratio"][0] == pytest.approx(row["ours"][0] / row["authors"][0])

@@ -1,6 +1,6 @@
 """The official network on a reference folder's inputs (tools/reference/corri2p.py made it with the authors' code):
 every tensor the folder records, under its names, from our modules. tests/test_corri2p_reference.py compares them;
-benchmarks/corri2p_official.py times the same forward."""
+benchmarks/against_authors.py --method corri2p times the same forward."""
 
 from __future__ import annotations
 
