@@ -9,7 +9,7 @@ import toy_plugin
 
 from i2pbench.pipeline import Combination
 from i2pbench.protocol import Protocol
-from i2pbench.registry.build import build_registry, default_registry
+from i2pbench.registry.build import build_registry
 from i2pbench.runs.executors import Collector, plan
 from i2pbench.runs.jobs import frame_key, prepare
 from i2pbench.runs.store import ResultsStore
@@ -22,11 +22,9 @@ PER_RUN = {"invocation", "wall_s", "t_load_s", "t_total_s"}  # what two computat
 
 @pytest.fixture
 def registry(monkeypatch):
-    """The toy plugin alone; the process's default registry, which the scoring reads, is rebuilt afterwards so that
-    one built without the installed plugins does not outlive this test."""
+    """The toy plugin alone (the default registry the scoring reads is the one of this selection: no plugin)."""
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
-    yield build_registry((toy_plugin,))
-    default_registry.cache_clear()
+    return build_registry((toy_plugin,))
 
 
 def _files(store: ResultsStore) -> list[str]:

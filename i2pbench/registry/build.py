@@ -19,7 +19,7 @@ from ..components import STAGES
 from ..errors import PluginError
 from .catalog import CLASS_KINDS, Preset, Registry
 from .lazy import registered_class
-from .loading import BUILTIN_DISTRIBUTION, make_plugin_manager, plugin_alone, registrations, warn
+from .loading import BUILTIN_DISTRIBUTION, make_plugin_manager, plugin_alone, plugin_selection, registrations, warn
 from .methods import Method, Row
 
 CLASS_HOOKS: dict[str, str] = {
@@ -48,9 +48,14 @@ def build_registry(extra_plugins: tuple[object, ...] = (), strict: bool = False)
     return registry
 
 
-@lru_cache(maxsize=1)
 def default_registry() -> Registry:
-    """The registry of the installed plugins, built once per process."""
+    """The registry of the installed plugins the environment selects, built once per process and selection: a caller
+    that sets I2PBENCH_LOAD_PLUGINS for a while (a test, a subcommand) never leaves its registry to the next one."""
+    return _registry_for(plugin_selection())
+
+
+@lru_cache(maxsize=4)
+def _registry_for(selection: tuple[str | None, str | None]) -> Registry:
     return build_registry()
 
 

@@ -46,6 +46,11 @@ def _env_names(var: str) -> set[str] | None:
     return {part.strip() for part in value.split(",") if part.strip()}
 
 
+def plugin_selection() -> tuple[str | None, str | None]:
+    """the environment's say over which plugins load (I2PBENCH_LOAD_PLUGINS, I2PBENCH_BLOCK_PLUGINS), as set."""
+    return os.environ.get("I2PBENCH_LOAD_PLUGINS"), os.environ.get("I2PBENCH_BLOCK_PLUGINS")
+
+
 def selected_entry_points() -> list[EntryPoint]:
     """the group's entry points in name order, less those the environment variables leave out."""
     only = _env_names("I2PBENCH_LOAD_PLUGINS")
