@@ -14,11 +14,11 @@ import torch
 from i2pbench_corri2p.official import importer
 from i2pbench_corri2p.official.checkpoint import ours
 from i2pbench_corri2p.official.stages import OfficialCorrI2P, grid_pixels, pixel_cells
-from i2pbench_edgeregnet.reference import recipe_value
 
 from i2pbench.api import Keypoints2D, Keypoints3D, WeightsError
 from i2pbench.cli import main
 from i2pbench.registry.build import default_registry
+from i2pbench.testing.recipe import recipe_value
 from i2pbench.weights import load_checkpoint
 
 SHAPES = Path(__file__).parent / "data" / "reference" / "corri2p" / "state_dict_shapes.json"

@@ -26,12 +26,12 @@ from i2pbench_deepi2p.official.stages import (
     pixel_cells,
     projects_inside,
 )
-from i2pbench_edgeregnet.reference import recipe_value
 
 from i2pbench.api import Keypoints2D, Matches, WeightsError
 from i2pbench.cli import main
 from i2pbench.registry.build import default_registry
 from i2pbench.runs.store import ResultsStore
+from i2pbench.testing.recipe import recipe_value
 from i2pbench.weights import load_checkpoint
 
 SHAPES = Path(__file__).parent / "data" / "reference" / "deepi2p" / "state_dict_shapes.json"

@@ -16,10 +16,10 @@ from i2pbench_deepi2p.official import solvers
 from i2pbench_deepi2p.official.network import DeepI2PNetwork
 from i2pbench_deepi2p.official.reference import reference_forward
 from i2pbench_deepi2p.official.weights import import_official, to_network
-from i2pbench_edgeregnet.reference import recipe_value
 from scipy.spatial.transform import Rotation
 
 from i2pbench.api import WeightsError
+from i2pbench.testing.recipe import recipe_value
 
 FOLDER = Path(os.environ.get("I2PBENCH_DEEPI2P_REFERENCE") or Path(__file__).parent / "data" / "reference" / "deepi2p")
 pytestmark = pytest.mark.skipif(not (FOLDER / "outputs.npz").is_file(), reason=f"no DeepI2P reference set at {FOLDER}")

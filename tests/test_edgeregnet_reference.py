@@ -16,11 +16,12 @@ from i2pbench_edgeregnet import official_import
 from i2pbench_edgeregnet.method import official_stages
 from i2pbench_edgeregnet.official_matching import official_loss, project
 from i2pbench_edgeregnet.official_pointnet2 import ball_query, normalize
-from i2pbench_edgeregnet.reference import recipe_state, reference_forward, reference_frame
+from i2pbench_edgeregnet.reference import reference_forward, reference_frame
 
 from i2pbench.cli import main
 from i2pbench.layers.pointnet2 import ball_query as fast_ball_query
 from i2pbench.layers.pointnet2 import farthest_point_sampling
+from i2pbench.testing.recipe import folder_state
 from i2pbench.weights import load_checkpoint
 
 FOLDER = Path(os.environ.get("I2PBENCH_EDGEREGNET_REFERENCE") or SAMPLE_DATA / "edgeregnet_reference")
@@ -50,7 +51,7 @@ def reference():
 @pytest.fixture(scope="module")
 def official_file(tmp_path_factory):
     """the folder's weights regenerated from the recipe, saved as the authors' checkpoint would be."""
-    state, digest = recipe_state(FOLDER)
+    state, digest = folder_state(FOLDER)
     assert digest == (FOLDER / "weights.sha256").read_text().split()[0]
     path = tmp_path_factory.mktemp("official") / "KITTI.t7"
     torch.save(state, path)

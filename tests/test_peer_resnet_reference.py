@@ -15,8 +15,9 @@ import torch
 import torch.nn.functional as F
 from i2pbench_corri2p.image import CorrI2PImageEncoder
 from i2pbench_deepi2p.image import DeepI2PImageEncoder
-from i2pbench_edgeregnet.reference import recipe_value
 from torch import nn
+
+from i2pbench.testing.recipe import recipe_value
 
 REFERENCE = Path(__file__).parent / "data" / "peer_resnet34" / "reference.npz"
 PREFIX = "img_encoder.backbone."  # both authors' state dicts

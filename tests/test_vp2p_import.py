@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 import torch
 from i2pbench_vp2p_match.official_import import RELEASE, load_official
-from i2pbench_vp2p_match.reference import recipe_state
 
 from i2pbench.api import WeightsError
+from i2pbench.testing.recipe import recipe_state
 
 SHAPES = Path(__file__).parent / "data" / "vp2p_reference" / "state_dict_shapes.json"
 

@@ -13,12 +13,12 @@ import pytest
 import torch
 from i2pbench_vp2p_match.official_import import RELEASE
 from i2pbench_vp2p_match.prepare import grid_pixels
-from i2pbench_vp2p_match.reference import recipe_state
 from i2pbench_vp2p_match.stages import CROP, OfficialVP2PMatch, confident_pairs
 
 from i2pbench.boards import leaderboard
 from i2pbench.cli import main
 from i2pbench.registry.build import default_registry
+from i2pbench.testing.recipe import recipe_state
 from i2pbench.weights import load_checkpoint
 
 SHAPES = Path(__file__).parent / "data" / "vp2p_reference" / "state_dict_shapes.json"

@@ -16,12 +16,13 @@ from i2pbench_vp2p_match.official.network import VP2PMatchNet
 from i2pbench_vp2p_match.official.points import PointsEncoder
 from i2pbench_vp2p_match.official.spvcnn import SPVCNN
 from i2pbench_vp2p_match.reference import (
-    folder_state,
     image_branch_forward,
     network_forward,
     point_branch_forward,
     voxel_branch_forward,
 )
+
+from i2pbench.testing.recipe import folder_state
 
 FOLDER = Path(os.environ.get("I2PBENCH_VP2P_REFERENCE") or Path(__file__).parent / "data" / "vp2p_reference")
 pytestmark = pytest.mark.skipif(

@@ -38,8 +38,9 @@ import cv2
 import numpy as np
 import open3d as o3d
 import torch
-from i2pbench_edgeregnet.reference import recipe_value
 from scipy.spatial import cKDTree
+
+from i2pbench.testing.recipe import recipe_value
 
 IMAGE_H, IMAGE_W, TOP_ROWS = 160, 512, 50
 NUM_KPT, DIST_THRES, POS_MARGIN, NEG_MARGIN = 512, 1.0, 0.2, 1.8  # train.py defaults

@@ -28,7 +28,6 @@ import hashlib
 import json
 import sys
 import types
-import zlib
 from pathlib import Path
 
 import cv2
@@ -36,26 +35,10 @@ import numpy as np
 import open3d as o3d
 import torch
 
+from i2pbench.testing.recipe import recipe_value
+
 FRAME = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "kitti_odometry" / "sequences" / "00"
 CAM_FROM_NWU = np.array([[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]], np.float64)
-
-
-def recipe_value(key: str, shape: tuple[int, ...], salt: str) -> np.ndarray:
-    """one tensor of the EdgeRegNet reference README's weight recipe."""
-    rng = np.random.default_rng(zlib.crc32((key + salt).encode()))
-    if key.endswith("num_batches_tracked"):
-        return np.zeros(shape, np.int64)
-    if key.endswith("running_mean"):
-        value = 0.1 * rng.standard_normal(shape)
-    elif key.endswith("running_var"):
-        value = 0.5 + rng.random(shape)
-    elif key.endswith("weight") and len(shape) == 1:
-        value = 1 + 0.1 * rng.standard_normal(shape)
-    elif key.endswith("bias"):
-        value = 0.05 * rng.standard_normal(shape)
-    else:
-        value = rng.standard_normal(shape) / np.sqrt(np.prod(shape[1:]))
-    return value.astype(np.float32)
 
 
 def index_max_cpu(data: torch.Tensor, cluster: torch.Tensor, clusters: int) -> torch.Tensor:

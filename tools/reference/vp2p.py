@@ -35,7 +35,8 @@ import numpy as np
 import open3d as o3d
 import torch
 import torch.utils.hooks
-from i2pbench_vp2p_match.reference import recipe_state
+
+from i2pbench.testing.recipe import recipe_state
 
 CLOUD = ("pc", "intensity", "sn")  # VP2PMatchNet's point inputs, channels first
 

@@ -1,15 +1,10 @@
 """Reference vectors of the authors' network (a folder made by their `AttentionModule`, see its README.md): the
-seeded weight recipe, and the official size's forward on the recorded inputs returning every tensor the folder
-records, under the folder's names and layouts (channels first, rows 3D). tests/test_edgeregnet_reference.py
+official size's forward on the recorded inputs returning every tensor the folder records, under the folder's names
+and layouts (channels first, rows 3D), with the weights of `i2pbench.testing.recipe`. tests/test_edgeregnet_reference.py
 compares them; benchmarks/edgeregnet_official.py times the same forward.
 """
 
 from __future__ import annotations
-
-import hashlib
-import json
-import zlib
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -18,36 +13,6 @@ import torch.nn.functional as F
 from i2pbench.api import Frame, Keypoints2D, Keypoints3D
 
 from .official_matching import filter_matches
-
-
-def recipe_value(key: str, shape: tuple[int, ...], salt: str = "") -> np.ndarray:
-    """one tensor of the folder's weight recipe (README.md: 'Weights')."""
-    rng = np.random.default_rng(zlib.crc32((key + salt).encode()))
-    if key.endswith("num_batches_tracked"):
-        return np.zeros(shape, np.int64)
-    if key.endswith("running_mean"):
-        value = 0.1 * rng.standard_normal(shape)
-    elif key.endswith("running_var"):
-        value = 0.5 + rng.random(shape)
-    elif key.endswith("weight") and len(shape) == 1:
-        value = 1 + 0.1 * rng.standard_normal(shape)
-    elif key.endswith("bias"):
-        value = 0.05 * rng.standard_normal(shape)
-    else:
-        value = rng.standard_normal(shape) / np.sqrt(np.prod(shape[1:]))
-    return value.astype(np.float32)
-
-
-def recipe_state(folder: Path) -> tuple[dict[str, torch.Tensor], str]:
-    """the folder's official state dict, regenerated, and the sha256 of its tensors' bytes in order."""
-    shapes = json.loads((folder / "state_dict_shapes.json").read_text())
-    salt = json.loads((folder / "meta.json").read_text()).get("salt", "")
-    digest, state = hashlib.sha256(), {}
-    for key, shape in shapes.items():
-        value = recipe_value(key, tuple(shape), salt)
-        digest.update(value.astype(value.dtype.newbyteorder("<")).tobytes())
-        state[key] = torch.from_numpy(value)
-    return state, digest.hexdigest()
 
 
 def reference_frame(inputs: dict[str, np.ndarray]) -> tuple[Frame, Keypoints2D, Keypoints3D]:

@@ -1,13 +1,8 @@
-"""Reference vectors of the authors' VP2P-Match (a folder made by tools/reference/vp2p.py): the seeded weight recipe
-and the official modules' forward on the recorded inputs, under the folder's names. tests/test_vp2p_reference.py
-compares them."""
+"""Reference vectors of the authors' VP2P-Match (a folder made by tools/reference/vp2p.py): the official modules'
+forward on the recorded inputs, under the folder's names, with the weights of `i2pbench.testing.recipe`.
+tests/test_vp2p_reference.py compares them."""
 
 from __future__ import annotations
-
-import hashlib
-import json
-import zlib
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -16,41 +11,6 @@ from .official.image import ImageResNet
 from .official.network import VP2PMatchNet
 from .official.points import PointsEncoder
 from .official.spvcnn import SPVCNN, voxel_coordinates
-
-
-def recipe_value(key: str, shape: tuple[int, ...], salt: str = "") -> np.ndarray:
-    """one tensor of the weight recipe of ../shared/data/edgeregnet_reference/README.md, seeded by crc32(key + salt)."""
-    rng = np.random.default_rng(zlib.crc32((key + salt).encode()))
-    if key.endswith("num_batches_tracked"):
-        return np.zeros(shape, np.int64)
-    if key.endswith("running_mean"):
-        value = 0.1 * rng.standard_normal(shape)
-    elif key.endswith("running_var"):
-        value = 0.5 + rng.random(shape)
-    elif key.endswith("weight") and len(shape) == 1:
-        value = 1 + 0.1 * rng.standard_normal(shape)
-    elif key.endswith("bias"):
-        value = 0.05 * rng.standard_normal(shape)
-    elif key.endswith("kernel"):  # torchsparse's [K^3 x C_in x C_out] (or [C_in x C_out]): fan-in before the last
-        value = rng.standard_normal(shape) / np.sqrt(np.prod(shape[:-1]))
-    else:
-        value = rng.standard_normal(shape) / np.sqrt(np.prod(shape[1:]))
-    return value.astype(np.float32)
-
-
-def recipe_state(shapes: dict[str, list[int]], salt: str) -> tuple[dict[str, torch.Tensor], str]:
-    """the state dict of `shapes` by the recipe, and the sha256 of its tensors' little-endian bytes in order."""
-    digest, state = hashlib.sha256(), {}
-    for key, shape in shapes.items():
-        value = recipe_value(key, tuple(shape), salt)
-        digest.update(value.astype(value.dtype.newbyteorder("<")).tobytes())
-        state[key] = torch.from_numpy(value)
-    return state, digest.hexdigest()
-
-
-def folder_state(folder: Path) -> tuple[dict[str, torch.Tensor], str]:
-    shapes = json.loads((folder / "state_dict_shapes.json").read_text())
-    return recipe_state(shapes, json.loads((folder / "meta.json").read_text()).get("salt", ""))
 
 
 def voxel_branch_inputs(inputs: dict[str, np.ndarray]) -> tuple[torch.Tensor, torch.Tensor]:
