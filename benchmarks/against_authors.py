@@ -12,11 +12,17 @@ Prints per stage the medians and ours / authors'.
         [--threads 1 2] [--repeat 2] [--keypoints 3000] [--json OUT.json]
     .venv/bin/python benchmarks/against_authors.py --method corri2p --checkout /work/peers/CorrI2P [--points 40960]
     .venv/bin/python benchmarks/against_authors.py --method deepi2p --checkout /work/peers/DeepI2P [--points 20480]
+    /tmp/tsvenv/bin/python benchmarks/against_authors.py --method vp2p-match --checkout /work/peers/VP2P-Match \
+        [--points 40960]   # an interpreter with torchsparse 2.0 (tools/reference/vp2p.py), this repo's plugins on it
 
 A method is one entry of METHODS: a function (checkout, args) -> Pair, the stages both sides split alike, in order.
 CorrI2P and DeepI2P are built by their reference tools (tools/reference/*.py, with those tools' CPU stand-in of the
 authors' CUDA index_max, so the authors' `points` stage includes a Python loop their GPU would not run) and split as
 image encoder, point encoder and the rest (exchange and heads, on the encoders' outputs computed once).
+VP2P-Match is built as tools/reference/vp2p.py builds it (torchsparse 2.0 with that tool's CPU stand-ins, so its
+interpreter; pointnet2_ops' farthest point sampling and ball query as plain-torch loops, slower than their CUDA
+kernels: the authors' `points` stage bounds their code from above) and split as image, point and voxel branches and
+the rest (fusion and heads).
 """
 
 from __future__ import annotations
@@ -291,11 +297,12 @@ def encoder_split(
 
 
 def final_errors(sides: dict[str, Stages], named: dict[str, Callable], outputs: dict[str, np.ndarray]) -> dict:
-    """each side's split forward on the reference inputs: its outputs (named by `named[side]`) against the recorded."""
+    """each side's split forward (its last stage, the rest of the forward) on the reference inputs: its outputs
+    (named by `named[side]`) against the recorded."""
     errors = {}
     with torch.inference_mode():
         for side, stages in sides.items():
-            for name, tensor in named[side](stages["exchange"]()).items():
+            for name, tensor in named[side](list(stages.values())[-1]()).items():
                 errors[f"{side} {name}"] = relative(tensor[0], outputs[name])
     return errors
 
@@ -401,10 +408,99 @@ def deepi2p(checkout: Path, args: argparse.Namespace) -> Pair:
     return Pair(timed["authors"], timed["ours"], check)
 
 
+# ---- VP2P-Match: models/triplet_network.py VP2PMatchNet, three branches then fusion and heads
+
+
+@contextlib.contextmanager
+def cuda_on_cpu():
+    """Tensor.cuda a no-op while inside: their forward puts its batch indices on the GPU (triplet_network.py:59)."""
+    cuda = torch.Tensor.cuda
+    torch.Tensor.cuda = lambda self, *args, **kwargs: self
+    try:
+        yield
+    finally:
+        torch.Tensor.cuda = cuda
+
+
+def import_authors_vp2p(checkout: Path, tool: types.ModuleType) -> tuple[type, type]:
+    """their VP2PMatchNet and Options classes from the checkout, on torchsparse 2.0 with the reference tool's CPU
+    stand-ins (its sparse convolutions, pointnet2_ops' CUDA kernels); refused by name where torchsparse is missing."""
+    require(checkout, "models/triplet_network.py", "VP2P-Match")
+    if importlib.util.find_spec("torchsparse") is None:
+        raise SystemExit(
+            f"VP2P-Match's authors' code needs torchsparse 2.0 (their voxel branch), which {sys.executable} cannot "
+            "import: run this with the interpreter that has it, as tools/reference/vp2p.py is run"
+        )
+    tool.load_sibling("sparse").add_cpu_stand_ins()
+    tool.load_sibling("pointnet2_cpu").install()
+    sys.path.insert(0, str(checkout))
+    try:
+        from models.triplet_network import VP2PMatchNet
+        from utils.options import Options
+    finally:
+        sys.path.remove(str(checkout))
+    return VP2PMatchNet, Options
+
+
+def vp2p_match(checkout: Path, args: argparse.Namespace) -> Pair:
+    """VP2P-Match's official size against the authors' VP2PMatchNet, the reference set's recipe weights; split as
+    image, point and voxel branches and the rest (fusion and heads); timed on the set's frame prepared by the
+    reference tool at `--points` (0: their 40,960) and their 160 x 512 image."""
+    from i2pbench_vp2p_match.official.network import VP2PMatchNet
+    from i2pbench_vp2p_match.official.spvcnn import voxel_coordinates
+    from i2pbench_vp2p_match.reference import recipe_state
+
+    tool, folder = reference_tool("vp2p"), Path(args.reference or ROOT / "tests/data/vp2p_reference")
+    authors_class, options = import_authors_vp2p(checkout, tool)
+    meta, recorded, outputs = reference_set(folder)
+    shapes = json.loads((folder / "state_dict_shapes.json").read_text())
+    state, digest = recipe_state(shapes, meta["salt"])
+    if digest != (folder / "weights.sha256").read_text().split()[0]:
+        raise SystemExit(f"{folder}: the regenerated weights do not match weights.sha256")
+    with mock.patch("builtins.print"):
+        theirs = authors_class(options())
+    theirs.load_state_dict(state)
+    mine = VP2PMatchNet()
+    mine.load_state_dict(state)
+    nets = {"authors": theirs.eval(), "ours": mine.eval()}
+
+    def split(net: torch.nn.Module, inputs: dict[str, np.ndarray]) -> Stages:
+        pc, intensity, sn, img = (torch.from_numpy(inputs[k])[None] for k in ("pc", "intensity", "sn", "img"))
+        cloud = torch.cat([pc, intensity, sn], dim=1)
+        branches = {
+            "resnet": (net.resnet, (img,)),
+            "point_transformer": (net.point_transformer, (cloud,)),
+            "voxel_branch": (net.voxel_branch, (cloud.transpose(2, 1).reshape(-1, 7), voxel_coordinates(pc), 1)),
+        }
+        with torch.inference_mode():
+            once = {name: module(*call) for name, (module, call) in branches.items()}
+
+        def run(module: torch.nn.Module, call: tuple) -> Callable[[], object]:
+            return lambda: module(*call)
+
+        def fusion():
+            with encoders_replaced(net, once), cuda_on_cpu():
+                return net(pc, intensity, sn, img)
+
+        stages = dict(zip(("image", "points", "voxels"), (run(*b) for b in branches.values()), strict=True))
+        return stages | {"fusion": fusion}
+
+    names = ("pixel_feat", "point_feat", "img_score", "pc_score")
+    named = dict.fromkeys(nets, lambda out: dict(zip(names, out, strict=True)))
+    references = {k: outputs[f"network.{k}"] for k in names}
+    check = functools.partial(final_errors, {s: split(n, recorded) for s, n in nets.items()}, named, references)
+    frame = DATA / "kitti_odometry" / meta["frame"]
+    opt = options()
+    inputs = tool.frame_points(frame, meta["frame_index"], args.points or opt.input_pt_num, meta["seed"])
+    inputs["img"] = tool.frame_image(frame, meta["frame_index"], (opt.img_H, opt.img_W))
+    return Pair(split(theirs, inputs), split(mine, inputs), check)
+
+
 METHODS: dict[str, Callable[[Path, argparse.Namespace], Pair]] = {
     "edgeregnet": edgeregnet,
     "corri2p": corri2p,
     "deepi2p": deepi2p,
+    "vp2p-match": vp2p_match,
 }
 
 
@@ -416,7 +512,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--keypoints", type=int, default=3000, help="EdgeRegNet, a side; 0: the reference set's own")
-    parser.add_argument("--points", type=int, default=0, help="CorrI2P, DeepI2P: cloud size; 0: the authors' options")
+    parser.add_argument("--points", type=int, default=0, help="CorrI2P, DeepI2P, VP2P-Match: cloud; 0: the authors'")
     parser.add_argument("--json", type=Path, help="write every frame's times and load here")
     args = parser.parse_args(argv)
     print(f"torch {torch.__version__}; load {load_average()}; building {args.method} from {args.checkout}", flush=True)

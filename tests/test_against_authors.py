@@ -2,8 +2,10 @@
 hand, docs/performance.md): the frame at the authors' sizes keeps the reference set's cloud and canvas and draws
 its keypoints inside them; a folder that is not the method's checkout is refused by name; the encoder split runs
 the forward on the encoders' recorded outputs and gives the encoders back; and, where a checkout is named by its
-environment variable, a tiny CorrI2P / DeepI2P run checks both sides against the reference set and times them."""
+environment variable, a tiny CorrI2P / DeepI2P / VP2P-Match run checks both sides against the reference set and times
+them (VP2P-Match's only where this interpreter has torchsparse, which its authors' code needs)."""
 
+import importlib.util
 import json
 import os
 import subprocess
@@ -50,10 +52,17 @@ def test_a_folder_without_their_model_is_refused(tmp_path):
 
 
 def test_the_table_holds_every_official_method_with_the_authors_code_at_hand():
-    assert set(against_authors.METHODS) == {"edgeregnet", "corri2p", "deepi2p"}
+    assert set(against_authors.METHODS) == {"edgeregnet", "corri2p", "deepi2p", "vp2p-match"}
 
 
-@pytest.mark.parametrize(("method", "file"), [("corri2p", "network.py"), ("deepi2p", "models/networks_united.py")])
+NETWORKS = [
+    ("corri2p", "network.py"),
+    ("deepi2p", "models/networks_united.py"),
+    ("vp2p-match", "models/triplet_network.py"),
+]
+
+
+@pytest.mark.parametrize(("method", "file"), NETWORKS)
 def test_a_folder_without_the_methods_network_is_refused(method, file, tmp_path):
     args = against_authors.argparse.Namespace(reference=None, points=0)
     with pytest.raises(SystemExit, match=f"{tmp_path}: no {file}; --checkout must be a"):
@@ -93,15 +102,33 @@ def test_the_encoder_split_runs_the_rest_on_the_encoders_outputs_and_gives_them_
     assert net(torch.zeros(2), torch.zeros(2))["sum"].tolist() == [0.0, 0.0]
 
 
-CHECKOUTS = {"corri2p": ("I2PBENCH_CORRI2P_CHECKOUT", 2048), "deepi2p": ("I2PBENCH_DEEPI2P_CHECKOUT", 1024)}
+def test_vp2p_match_without_torchsparse_is_refused_by_name(tmp_path, monkeypatch):
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "triplet_network.py").write_text("raise AssertionError('not to be imported')\n")
+    found = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "torchsparse" else found(name, *a)
+    )
+    args = against_authors.argparse.Namespace(reference=None, points=0)
+    with pytest.raises(SystemExit, match=f"needs torchsparse 2.0 .*{sys.executable} cannot import"):
+        against_authors.METHODS["vp2p-match"](tmp_path, args)
+
+
+CHECKOUTS = {
+    "corri2p": ("I2PBENCH_CORRI2P_CHECKOUT", 2048, ["image", "points", "exchange"]),
+    "deepi2p": ("I2PBENCH_DEEPI2P_CHECKOUT", 1024, ["image", "points", "exchange"]),
+    "vp2p-match": ("I2PBENCH_VP2P_CHECKOUT", 1024, ["image", "points", "voxels", "fusion"]),
+}
 
 
 @pytest.mark.parametrize("method", sorted(CHECKOUTS))
 def test_a_tiny_run_checks_both_sides_against_the_reference_set_then_times_them(method, tmp_path):
-    variable, points = CHECKOUTS[method]
+    variable, points, stages = CHECKOUTS[method]
     checkout = os.environ.get(variable, "")
     if not checkout:
         pytest.skip(f"{variable} is not set: the path of the authors' {method} checkout")
+    if method == "vp2p-match" and importlib.util.find_spec("torchsparse") is None:
+        pytest.skip(f"torchsparse is not importable in {sys.executable}: the authors' VP2P-Match code needs it")
     sample("kitti_odometry")  # the timed frame is the reference set's, prepared again at --points
     out = tmp_path / "run.json"
     argv = ["--method", method, "--checkout", checkout, "--points", str(points), "--threads", "1", "--repeat", "1"]
@@ -111,8 +138,8 @@ def test_a_tiny_run_checks_both_sides_against_the_reference_set_then_times_them(
     assert len(report["check"]) >= 4 and max(report["check"].values()) <= 1e-4
     assert {k.split()[0] for k in report["check"]} == {"authors", "ours"}
     table = report["threads"]["1"]["table"]
-    assert list(table) == ["image", "points", "exchange", "frame"]
-    for name in ("image", "points", "exchange"):  # wall and CPU seconds, each side, and their ratio
+    assert list(table) == [*stages, "frame"]
+    for name in stages:  # wall and CPU seconds, each side, and their ratio
         row = table[name]
         assert min(*row["authors"], *row["ours"]) > 0
         assert row["ratio"][0] == pytest.approx(row["ours"][0] / row["authors"][0])
