@@ -234,10 +234,12 @@ def edgeregnet_check(authors: Stages, ours: dict, inputs: dict, outputs: dict) -
 def edgeregnet(checkout: Path, args: argparse.Namespace) -> Pair:
     """EdgeRegNet's official size against AttentionModule, on the reference set's frame and weights."""
     from edgeregnet_official import stage_runs  # this folder is on sys.path when the script runs
-    from i2pbench_edgeregnet.reference import recipe_state, reference_frame
+    from i2pbench_edgeregnet.reference import reference_frame
+
+    from i2pbench.testing.recipe import folder_state
 
     folder = Path(args.reference or os.environ.get("I2PBENCH_EDGEREGNET_REFERENCE", DATA / "edgeregnet_reference"))
-    state, digest = recipe_state(folder)
+    state, digest = folder_state(folder)
     if digest != (folder / "weights.sha256").read_text().split()[0]:
         raise SystemExit(f"{folder}: the regenerated weights do not match weights.sha256")
     cali_glue = import_authors_edgeregnet(checkout)
@@ -332,7 +334,8 @@ def corri2p(checkout: Path, args: argparse.Namespace) -> Pair:
     from i2pbench_corri2p.official.checkpoint import dropped, ours
     from i2pbench_corri2p.official.network import CorrI2PNet
     from i2pbench_corri2p.official.reference import NETWORK_INPUTS, image_tensor
-    from i2pbench_edgeregnet.reference import recipe_value
+
+    from i2pbench.testing.recipe import recipe_value
 
     require(checkout, "network.py", "CorrI2P")
     tool, folder = reference_tool("corri2p"), Path(args.reference or ROOT / "tests/data/reference/corri2p")
@@ -448,7 +451,8 @@ def vp2p_match(checkout: Path, args: argparse.Namespace) -> Pair:
     reference tool at `--points` (0: their 40,960) and their 160 x 512 image."""
     from i2pbench_vp2p_match.official.network import VP2PMatchNet
     from i2pbench_vp2p_match.official.spvcnn import voxel_coordinates
-    from i2pbench_vp2p_match.reference import recipe_state
+
+    from i2pbench.testing.recipe import recipe_state
 
     tool, folder = reference_tool("vp2p"), Path(args.reference or ROOT / "tests/data/vp2p_reference")
     authors_class, options = import_authors_vp2p(checkout, tool)
