@@ -41,10 +41,11 @@ from i2pbench.api import (
     Matcher,
     Matches,
 )
+from i2pbench.layers.peer_inputs import LIDAR_TO_CAMERA_AXES, drawn, network_image, voxel_cloud
 from i2pbench.layers.pointnet2 import frame_seed
 
 from .official.network import VP2PMatchNet
-from .prepare import LIDAR_TO_CAMERA_AXES, grid_pixels, network_image, pixel_cells, voxel_cloud
+from .prepare import grid_pixels, pixel_cells
 
 NUM_POINTS = 40960  # utils/options.py input_pt_num
 # the authors' image preparation (kitti_dataset.py:306-319; options.py img_W x img_H): a conf of the grid and of the
@@ -73,7 +74,7 @@ class OfficialPoints(Extractor3D):
         xyz, _, intensity, rows = voxel_cloud(frame)
         count = int(self.conf["max_keypoints"])
         rng = np.random.default_rng([frame_seed(frame), int(self.conf["seed"])])
-        pick = rng.choice(len(xyz), count, replace=False) if len(xyz) > count else rng.permutation(len(xyz))
+        pick = drawn(len(xyz), count, rng, in_draw_order=True)
         return Keypoints3D(index=rows[pick].astype(np.int64), xyz=xyz[pick], reflectance=intensity[pick])
 
 

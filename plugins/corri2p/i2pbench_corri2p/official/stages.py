@@ -29,7 +29,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
-import cv2
 import numpy as np
 import torch
 
@@ -48,94 +47,33 @@ from i2pbench.api import (
     Matcher,
     Matches,
 )
+from i2pbench.layers import peer_inputs
+from i2pbench.layers.peer_inputs import (
+    LIDAR_TO_CAMERA_AXES,
+    cell_corners,
+    drawn,
+    farthest_nodes,
+    network_image,
+    voxel_cloud,
+)
 from i2pbench.layers.pointnet2 import frame_seed
 
 from .network import IMAGE_SIZE, NODES, NUM_POINTS, CorrI2PNet
 
 STRIDE = 4  # the decoder's output stride
-LIDAR_TO_CAMERA_AXES = np.array([[0, -1, 0], [0, 0, -1], [1, 0, 0]], np.float32)
 # the authors' image preparation (options.py crop_original_top_rows, img_scale, img_W x img_H): a conf of the grid
 # and of the matcher, which must agree (the official size pins both to these)
 CROP: dict[str, Any] = {"top_rows": 50, "scale": 0.5, "crop": (IMAGE_SIZE[1], IMAGE_SIZE[0])}
 
 
-def crop_offsets(width: int, height: int, crop: Mapping[str, Any]) -> tuple[int, int] | None:
-    """(dx, dy) of the centre crop in the scaled image (rows below `top_rows`), as the loader's val mode; None for a
-    frame too small to hold it."""
-    scaled_w = round(width * crop["scale"])
-    scaled_h = round((height - crop["top_rows"]) * crop["scale"])
-    crop_w, crop_h = crop["crop"]
-    if scaled_w < crop_w or scaled_h < crop_h:
-        return None
-    return (scaled_w - crop_w) // 2, (scaled_h - crop_h) // 2
-
-
-def network_image(image: np.ndarray, crop: Mapping[str, Any]) -> np.ndarray:
-    """the frame's RGB image -> the authors' crop (H x W x 3 uint8); the frame must hold it (crop_offsets)."""
-    cut = image[crop["top_rows"] :]
-    size = (round(cut.shape[1] * crop["scale"]), round(cut.shape[0] * crop["scale"]))
-    scaled = cv2.resize(cut, size, interpolation=cv2.INTER_LINEAR)
-    dx, dy = crop_offsets(image.shape[1], image.shape[0], crop)
-    crop_w, crop_h = crop["crop"]
-    return np.ascontiguousarray(scaled[dy : dy + crop_h, dx : dx + crop_w])
-
-
 def grid_pixels(width: int, height: int, crop: Mapping[str, Any] = CROP) -> np.ndarray:
-    """the full-resolution pixel of each stride-4 cell of the crop, raster order -> [cells x 2]; none for a frame
-    too small to hold the crop."""
-    offsets = crop_offsets(width, height, crop)
-    if offsets is None:
-        return np.zeros((0, 2), np.float32)
-    (dx, dy), (crop_w, crop_h) = offsets, crop["crop"]
-    rows, cols = np.divmod(np.arange((crop_h // STRIDE) * (crop_w // STRIDE)), crop_w // STRIDE)
-    step, scale = STRIDE / crop["scale"], 1 / crop["scale"]
-    return np.stack([step * cols + scale * dx, step * rows + scale * dy + crop["top_rows"]], 1).astype(np.float32)
+    """the full-resolution pixel of each stride-4 cell of the crop, raster order -> [cells x 2] (peer_inputs)."""
+    return cell_corners(width, height, crop, STRIDE)
 
 
 def pixel_cells(uv: np.ndarray, width: int, height: int, crop: Mapping[str, Any] = CROP) -> np.ndarray:
-    """the stride-4 cell of the crop each pixel uv [M x 2] falls in (the inverse of grid_pixels, whose pixels are
-    their cells' corners), raster order -> [M] int64; -1 outside the crop."""
-    offsets = crop_offsets(width, height, crop)
-    if offsets is None:
-        return np.full(len(uv), -1, np.int64)
-    (dx, dy), (crop_w, crop_h) = offsets, crop["crop"]
-    step = STRIDE / crop["scale"]
-    col = np.floor((uv[:, 0] - dx / crop["scale"]) / step).astype(np.int64)
-    row = np.floor((uv[:, 1] - crop["top_rows"] - dy / crop["scale"]) / step).astype(np.int64)
-    inside = (col >= 0) & (col < crop_w // STRIDE) & (row >= 0) & (row < crop_h // STRIDE)
-    return np.where(inside, row * (crop_w // STRIDE) + col, -1)
-
-
-def voxel_cloud(frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """the scan's 0.1 m voxel centroids [V x 3], their normals [V x 3], nearest-return intensity [V] and row [V]."""
-    import open3d as o3d
-    from scipy.spatial import cKDTree
-
-    finite = np.flatnonzero(np.isfinite(frame.points).all(1))
-    raw = frame.points[finite]
-    if len(raw) == 0:
-        empty = np.zeros((0, 3), np.float32)
-        return empty, empty, np.zeros(0, np.float32), np.zeros(0, np.int64)
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(raw[:, :3].astype(np.float64)))
-    down = cloud.voxel_down_sample(voxel_size=0.1)
-    down.estimate_normals(search_param=o3d.geometry.KDTreeSearchParamHybrid(radius=0.6, max_nn=30))
-    down.orient_normals_to_align_with_direction([0, 0, 1])
-    xyz = np.asarray(down.points, np.float32)
-    _, nearest = cKDTree(raw[:, :3]).query(xyz, k=1)
-    return xyz, np.asarray(down.normals, np.float32), raw[nearest, 3].astype(np.float32), finite[nearest]
-
-
-def farthest_nodes(points: np.ndarray, count: int, pool: int, rng: np.random.Generator) -> np.ndarray:
-    """the loader's node sampling: FPS (float64, first index at a tie, from a random start) over a random
-    pool * count of points [N x 3] -> [count x 3]."""
-    subset = points[rng.choice(len(points), min(pool * count, len(points)), replace=False)].astype(np.float64)
-    # fewer points than nodes: FPS repeats a point once all are taken, as the loader's does
-    chosen = [int(rng.integers(len(subset)))]
-    dist = ((subset - subset[chosen[0]]) ** 2).sum(1)
-    for _ in range(1, count):
-        chosen.append(int(np.argmax(dist)))
-        dist = np.minimum(dist, ((subset - subset[chosen[-1]]) ** 2).sum(1))
-    return subset[chosen].astype(np.float32)
+    """the stride-4 cell of the crop each pixel uv [M x 2] falls in, raster order -> [M] int64; -1 outside."""
+    return peer_inputs.pixel_cells(uv, width, height, crop, STRIDE)
 
 
 class OfficialGrid(Extractor2D):
@@ -159,7 +97,7 @@ class OfficialPoints(Extractor3D):
         xyz, _, intensity, rows = voxel_cloud(frame)
         count = int(self.conf["max_keypoints"])
         rng = np.random.default_rng([frame_seed(frame), int(self.conf["seed"])])
-        pick = np.sort(rng.choice(len(xyz), count, replace=False)) if len(xyz) > count else np.arange(len(xyz))
+        pick = drawn(len(xyz), count, rng)
         return Keypoints3D(index=rows[pick].astype(np.int64), xyz=xyz[pick], reflectance=intensity[pick])
 
 
