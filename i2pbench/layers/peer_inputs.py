@@ -92,16 +92,28 @@ def empty_cloud() -> Cloud:
     return none, none, np.zeros(0, np.float32), np.zeros(0, np.int64)
 
 
-def voxels_with_normals(xyz: np.ndarray, voxel_m: float = VOXEL_M):
-    """Open3D's voxel grid of points [N x 3] with normals by the hybrid search (0.6 m, 30 neighbours) turned to +z
-    (the scripts' `downsample_voxel_size`, `sn_radius`, `sn_max_nn`) -> the open3d PointCloud."""
+def open3d_voxels(xyz: np.ndarray, voxel_m: float = VOXEL_M):
+    """Open3D's voxel grid of points [N x 3] (the scripts' `downsample_voxel_size`) -> the open3d PointCloud."""
     import open3d as o3d
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz.astype(np.float64)))
-    cloud = cloud.voxel_down_sample(voxel_size=voxel_m)
+    return cloud.voxel_down_sample(voxel_size=voxel_m)
+
+
+def estimate_up_normals(cloud) -> None:
+    """an open3d PointCloud's normals by the hybrid search (0.6 m, 30 neighbours), turned to +z (the scripts'
+    `sn_radius`, `sn_max_nn`), in place."""
+    import open3d as o3d
+
     cloud.estimate_normals(search_param=o3d.geometry.KDTreeSearchParamHybrid(radius=NORMAL_RADIUS_M,
                                                                              max_nn=NORMAL_MAX_NN))  # fmt: skip
     cloud.orient_normals_to_align_with_direction([0, 0, 1])
+
+
+def voxels_with_normals(xyz: np.ndarray, voxel_m: float = VOXEL_M):
+    """the voxel grid of points [N x 3] with its +z normals -> the open3d PointCloud."""
+    cloud = open3d_voxels(xyz, voxel_m)
+    estimate_up_normals(cloud)
     return cloud
 
 
