@@ -6,7 +6,8 @@ Where the methods differ, the difference is a conf key or a named argument:
   DeepI2P kitti/options.py: 50; VP2P-Match kitti_dataset.py:306-319 cuts none, its conf has no such key);
 - `cell_px`: the side of a cell in pixels of the crop (CorrI2P's and VP2P-Match's stride-4 map, DeepI2P's 32 px fine
   cells, kitti/options.py `img_fine_resolution_scale`);
-- `in_draw_order`: VP2P-Match keeps its random draw's order (kitti_dataset.py:296-303), CorrI2P and DeepI2P sort it.
+- `in_draw_order`: VP2P-Match keeps its random draw's order (kitti_dataset.py:296-303), CorrI2P and DeepI2P sort it;
+- `DrawnCloud.cloud`: DeepI2P's loader voxelises again at 0.3 m (its plugin's `network_cloud`), the others do not.
 
 Geometry of a cell: the loaders scale the (cut) image with OpenCV linear to `round(side * scale)` and crop at
 offsets `(scaled - crop) // 2`; the authors' PnP reads cell (x, y) with K at 1 / cell_px of the crop's. That cell is
@@ -16,12 +17,14 @@ the frame's pixel (cell_px x + dx, cell_px y + dy) / scale + (0, top_rows) under
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
 
-from ..types import Frame
+from ..components import Extractor2D, Extractor3D
+from ..types import Frame, Keypoints2D, Keypoints3D
+from .pointnet2 import frame_seed
 
 REVISION = 0  # bump when an output of this module changes for the same inputs (see i2pbench.layers)
 
@@ -151,3 +154,32 @@ def farthest_nodes(points: np.ndarray, count: int, pool: int, rng: np.random.Gen
         chosen.append(int(np.argmax(dist)))
         dist = np.minimum(dist, ((subset - subset[chosen[-1]]) ** 2).sum(1))
     return subset[chosen].astype(np.float32)
+
+
+class CropCells(Extractor2D):
+    """Every cell of the authors' crop, as the frame's pixel their PnP puts it at; a method's subclass sets `name`,
+    `cell_px` and its crop as `default_conf`."""
+
+    cell_px: ClassVar[int]
+
+    def __call__(self, frame: Frame) -> Keypoints2D:
+        width, height = frame.image_size
+        return Keypoints2D(uv=cell_corners(width, height, self.conf, self.cell_px))
+
+
+class DrawnCloud(Extractor3D):
+    """A seeded random `max_keypoints` of the scan as the authors' loader prepares it (`cloud`: the 0.1 m voxels),
+    each point's `index` its nearest return's row; a method's subclass sets `name`, `default_conf` and
+    `in_draw_order`."""
+
+    in_draw_order: ClassVar[bool] = False
+
+    def cloud(self, frame: Frame, count: int) -> Cloud:
+        return voxel_cloud(frame)
+
+    def __call__(self, frame: Frame) -> Keypoints3D:
+        count = int(self.conf["max_keypoints"])
+        xyz, _, intensity, rows = self.cloud(frame, count)
+        rng = np.random.default_rng([frame_seed(frame), int(self.conf["seed"])])
+        pick = drawn(len(xyz), count, rng, self.in_draw_order)
+        return Keypoints3D(index=rows[pick].astype(np.int64), xyz=xyz[pick], reflectance=intensity[pick])

@@ -32,8 +32,6 @@ from i2pbench.api import (
     MATCHES,
     BatchedStage,
     Device,
-    Extractor2D,
-    Extractor3D,
     Features,
     Frame,
     Keypoints2D,
@@ -41,11 +39,10 @@ from i2pbench.api import (
     Matcher,
     Matches,
 )
-from i2pbench.layers.peer_inputs import LIDAR_TO_CAMERA_AXES, drawn, network_image, voxel_cloud
-from i2pbench.layers.pointnet2 import frame_seed
+from i2pbench.layers.peer_inputs import LIDAR_TO_CAMERA_AXES, CropCells, DrawnCloud, network_image, voxel_cloud
 
 from .official.network import VP2PMatchNet
-from .prepare import grid_pixels, pixel_cells
+from .prepare import STRIDE, pixel_cells
 
 NUM_POINTS = 40960  # utils/options.py input_pt_num
 # the authors' image preparation (kitti_dataset.py:306-319; options.py img_W x img_H): a conf of the grid and of the
@@ -53,29 +50,20 @@ NUM_POINTS = 40960  # utils/options.py input_pt_num
 CROP: dict[str, Any] = {"scale": 0.5, "crop": (512, 160)}
 
 
-class OfficialGrid(Extractor2D):
+class OfficialGrid(CropCells):
     """Every stride-4 cell of the authors' crop, as the frame's pixel their PnP puts it at (module docstring)."""
 
     name = "vp2p-match-official-grid"
     default_conf: ClassVar[dict[str, Any]] = dict(CROP)
-
-    def __call__(self, frame: Frame) -> Keypoints2D:
-        width, height = frame.image_size
-        return Keypoints2D(uv=grid_pixels(width, height, self.conf))
+    cell_px = STRIDE
 
 
-class OfficialPoints(Extractor3D):
+class OfficialPoints(DrawnCloud):
     """A seeded 40,960 of the scan's 0.1 m voxel centroids, in the order drawn (module docstring)."""
 
     name = "vp2p-match-official-points"
     default_conf: ClassVar[dict[str, Any]] = {"max_keypoints": NUM_POINTS, "seed": 0}
-
-    def __call__(self, frame: Frame) -> Keypoints3D:
-        xyz, _, intensity, rows = voxel_cloud(frame)
-        count = int(self.conf["max_keypoints"])
-        rng = np.random.default_rng([frame_seed(frame), int(self.conf["seed"])])
-        pick = drawn(len(xyz), count, rng, in_draw_order=True)
-        return Keypoints3D(index=rows[pick].astype(np.int64), xyz=xyz[pick], reflectance=intensity[pick])
+    in_draw_order = True
 
 
 def confident_pairs(

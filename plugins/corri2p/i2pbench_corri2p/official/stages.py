@@ -38,8 +38,6 @@ from i2pbench.api import (
     MATCHES,
     BatchedStage,
     Device,
-    Extractor2D,
-    Extractor3D,
     Features,
     Frame,
     Keypoints2D,
@@ -50,8 +48,9 @@ from i2pbench.api import (
 from i2pbench.layers import peer_inputs
 from i2pbench.layers.peer_inputs import (
     LIDAR_TO_CAMERA_AXES,
+    CropCells,
+    DrawnCloud,
     cell_corners,
-    drawn,
     farthest_nodes,
     network_image,
     voxel_cloud,
@@ -76,29 +75,19 @@ def pixel_cells(uv: np.ndarray, width: int, height: int, crop: Mapping[str, Any]
     return peer_inputs.pixel_cells(uv, width, height, crop, STRIDE)
 
 
-class OfficialGrid(Extractor2D):
+class OfficialGrid(CropCells):
     """Every stride-4 cell of the authors' crop, as the frame's pixel their PnP puts it at (module docstring)."""
 
     name = "corri2p-official-grid"
     default_conf: ClassVar[dict[str, Any]] = dict(CROP)
-
-    def __call__(self, frame: Frame) -> Keypoints2D:
-        width, height = frame.image_size
-        return Keypoints2D(uv=grid_pixels(width, height, self.conf))
+    cell_px = STRIDE
 
 
-class OfficialPoints(Extractor3D):
+class OfficialPoints(DrawnCloud):
     """A seeded 40,960 of the scan's 0.1 m voxel centroids (module docstring)."""
 
     name = "corri2p-official-points"
     default_conf: ClassVar[dict[str, Any]] = {"max_keypoints": NUM_POINTS, "seed": 0}
-
-    def __call__(self, frame: Frame) -> Keypoints3D:
-        xyz, _, intensity, rows = voxel_cloud(frame)
-        count = int(self.conf["max_keypoints"])
-        rng = np.random.default_rng([frame_seed(frame), int(self.conf["seed"])])
-        pick = drawn(len(xyz), count, rng)
-        return Keypoints3D(index=rows[pick].astype(np.int64), xyz=xyz[pick], reflectance=intensity[pick])
 
 
 class OfficialCorrI2P(BatchedStage, Matcher):

@@ -40,8 +40,6 @@ from i2pbench.api import (
     MATCHES,
     BatchedStage,
     Device,
-    Extractor2D,
-    Extractor3D,
     Features,
     Frame,
     Keypoints2D,
@@ -55,9 +53,10 @@ from i2pbench.api import (
 from i2pbench.layers import peer_inputs
 from i2pbench.layers.peer_inputs import (
     LIDAR_TO_CAMERA_AXES,
+    CropCells,
+    DrawnCloud,
     cell_corners,
     crop_offsets,
-    drawn,
     empty_cloud,
     farthest_nodes,
     finite_returns,
@@ -116,29 +115,22 @@ def network_cloud(frame: Frame, count: int) -> tuple[np.ndarray, np.ndarray, np.
     return xyz, np.asarray(cloud.normals, np.float32), intensity.astype(np.float32), rows
 
 
-class OfficialCells(Extractor2D):
+class OfficialCells(CropCells):
     """Every fine cell of the authors' crop, as the frame's pixel their PnP puts it at (module docstring)."""
 
     name = "deepi2p-official-grid"
     default_conf: ClassVar[dict[str, Any]] = dict(CROP)
-
-    def __call__(self, frame: Frame) -> Keypoints2D:
-        width, height = frame.image_size
-        return Keypoints2D(uv=cell_pixels(width, height, self.conf))
+    cell_px = CELL_PX
 
 
-class OfficialPoints(Extractor3D):
+class OfficialPoints(DrawnCloud):
     """A seeded 20,480 of the scan as the authors' loader prepares it (module docstring)."""
 
     name = "deepi2p-official-points"
     default_conf: ClassVar[dict[str, Any]] = {"max_keypoints": NUM_POINTS, "seed": 0}
 
-    def __call__(self, frame: Frame) -> Keypoints3D:
-        count = int(self.conf["max_keypoints"])
-        xyz, _, intensity, rows = network_cloud(frame, count)
-        rng = np.random.default_rng([frame_seed(frame), int(self.conf["seed"])])
-        pick = drawn(len(xyz), count, rng)
-        return Keypoints3D(index=rows[pick].astype(np.int64), xyz=xyz[pick], reflectance=intensity[pick])
+    def cloud(self, frame: Frame, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return network_cloud(frame, count)
 
 
 class OfficialDeepI2P(BatchedStage, Matcher):
