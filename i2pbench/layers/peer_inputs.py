@@ -7,6 +7,7 @@ Where the methods differ, the difference is a conf key or a named argument:
 - `cell_px`: the side of a cell in pixels of the crop (CorrI2P's and VP2P-Match's stride-4 map, DeepI2P's 32 px fine
   cells, kitti/options.py `img_fine_resolution_scale`);
 - `in_draw_order`: VP2P-Match keeps its random draw's order (kitti_dataset.py:296-303), CorrI2P and DeepI2P sort it;
+- `image_input(..., divide_by=)`: CorrI2P and VP2P-Match feed the image in [0, 1], DeepI2P in 0-255;
 - `DrawnCloud.cloud`: DeepI2P's loader voxelises again at 0.3 m (its plugin's `network_cloud`), the others do not.
 
 Geometry of a cell: the loaders scale the (cut) image with OpenCV linear to `round(side * scale)` and crop at
@@ -21,6 +22,7 @@ from typing import Any, ClassVar
 
 import cv2
 import numpy as np
+import torch
 
 from ..components import Extractor2D, Extractor3D
 from ..types import Frame, Keypoints2D, Keypoints3D
@@ -154,6 +156,33 @@ def farthest_nodes(points: np.ndarray, count: int, pool: int, rng: np.random.Gen
         chosen.append(int(np.argmax(dist)))
         dist = np.minimum(dist, ((subset - subset[chosen[-1]]) ** 2).sum(1))
     return subset[chosen].astype(np.float32)
+
+
+def image_input(image: np.ndarray, crop: Mapping[str, Any], divide_by: float = 255.0) -> torch.Tensor:
+    """the frame's RGB image as the network reads it: the authors' crop in float32 over `divide_by` -> [3 x H x W]."""
+    return torch.from_numpy(network_image(image, crop).astype(np.float32) / divide_by).permute(2, 0, 1)
+
+
+def point_inputs(kp3d: Keypoints3D, cloud: np.ndarray, normals: np.ndarray) -> dict[str, torch.Tensor]:
+    """the keypoints as the network reads them, in camera axes: `pc` [3 x N], `sn` [3 x N] (each point's normal is
+    its nearest voxel's of cloud [V x 3] and normals [V x 3]) and `intensity` [1 x N]."""
+    from scipy.spatial import cKDTree
+
+    xyz = np.asarray(kp3d.xyz, np.float32)
+    _, row = cKDTree(cloud).query(xyz, k=1)
+    return {
+        "pc": torch.from_numpy((xyz @ LIDAR_TO_CAMERA_AXES.T).T.copy()),
+        "sn": torch.from_numpy((normals[row] @ LIDAR_TO_CAMERA_AXES.T).T.copy()),
+        "intensity": torch.from_numpy(np.asarray(kp3d.reflectance, np.float32))[None],
+    }
+
+
+def node_inputs(frame: Frame, pc: torch.Tensor, count: int, pool: int) -> dict[str, torch.Tensor]:
+    """`node_a` and `node_b` [3 x count]: two farthest_nodes draws over pc [3 x N], seeded by the frame."""
+    rng = np.random.default_rng(frame_seed(frame))
+    points = pc.T.numpy()
+    nodes = [farthest_nodes(points, count, pool, rng) for _ in range(2)]
+    return {"node_a": torch.from_numpy(nodes[0].T.copy()), "node_b": torch.from_numpy(nodes[1].T.copy())}
 
 
 class CropCells(Extractor2D):

@@ -39,7 +39,13 @@ from i2pbench.api import (
     Matcher,
     Matches,
 )
-from i2pbench.layers.peer_inputs import LIDAR_TO_CAMERA_AXES, CropCells, DrawnCloud, network_image, voxel_cloud
+from i2pbench.layers.peer_inputs import (
+    CropCells,
+    DrawnCloud,
+    image_input,
+    point_inputs,
+    voxel_cloud,
+)
 
 from .official.network import VP2PMatchNet
 from .prepare import STRIDE, pixel_cells
@@ -110,18 +116,7 @@ class OfficialVP2PMatch(BatchedStage, Matcher):
         self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, device: Device = "cpu", cache: dict | None = None
     ) -> dict[str, torch.Tensor]:
         """the network's inputs: image [3 x 160 x 512], cloud and normals [3 x N] in camera axes, intensity [1 x N]."""
-        from scipy.spatial import cKDTree
-
-        voxels, normals, _, _ = voxel_cloud(frame)
-        xyz = np.asarray(kp3d.xyz, np.float32)
-        _, row = cKDTree(voxels).query(xyz, k=1)
-        image = torch.from_numpy(network_image(frame.image, self.conf).astype(np.float32) / 255.0).permute(2, 0, 1)
-        inputs = {
-            "img": image,
-            "pc": torch.from_numpy((xyz @ LIDAR_TO_CAMERA_AXES.T).T.copy()),
-            "sn": torch.from_numpy((normals[row] @ LIDAR_TO_CAMERA_AXES.T).T.copy()),
-            "intensity": torch.from_numpy(np.asarray(kp3d.reflectance, np.float32))[None],
-        }
+        inputs = {"img": image_input(frame.image, self.conf), **point_inputs(kp3d, *voxel_cloud(frame)[:2])}
         return {k: v.contiguous().to(device) for k, v in inputs.items()}
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:

@@ -47,15 +47,15 @@ from i2pbench.api import (
 )
 from i2pbench.layers import peer_inputs
 from i2pbench.layers.peer_inputs import (
-    LIDAR_TO_CAMERA_AXES,
     CropCells,
     DrawnCloud,
     cell_corners,
-    farthest_nodes,
-    network_image,
+    image_input,
+    node_inputs,
+    point_inputs,
     voxel_cloud,
 )
-from i2pbench.layers.pointnet2 import frame_seed
+from i2pbench.layers.peer_inputs import network_image as network_image  # the official crop, read by the tests
 
 from .network import IMAGE_SIZE, NODES, NUM_POINTS, CorrI2PNet
 
@@ -117,20 +117,9 @@ class OfficialCorrI2P(BatchedStage, Matcher):
     ) -> dict[str, torch.Tensor]:
         """the network's inputs: image [3 x 160 x 512], cloud and normals [3 x N] in camera axes, intensity
         [1 x N], nodes [3 x M] each."""
-        voxels, normals, _, _ = voxel_cloud(frame)
-        from scipy.spatial import cKDTree
-
-        _, row = cKDTree(voxels).query(np.asarray(kp3d.xyz, np.float32), k=1)
-        pc = np.asarray(kp3d.xyz, np.float32) @ LIDAR_TO_CAMERA_AXES.T
-        rng = np.random.default_rng(frame_seed(frame))
-        nodes = [farthest_nodes(pc, int(self.conf["nodes"]), int(self.conf["node_pool"]), rng) for _ in range(2)]
-        image = torch.from_numpy(network_image(frame.image, self.conf).astype(np.float32) / 255.0).permute(2, 0, 1)
-        sn = normals[row] @ LIDAR_TO_CAMERA_AXES.T
-        inputs = {
-            "image": image, "pc": torch.from_numpy(pc.T.copy()), "sn": torch.from_numpy(sn.T.copy()),
-            "intensity": torch.from_numpy(np.asarray(kp3d.reflectance, np.float32))[None],
-            "node_a": torch.from_numpy(nodes[0].T.copy()), "node_b": torch.from_numpy(nodes[1].T.copy()),
-        }  # fmt: skip
+        points = point_inputs(kp3d, *voxel_cloud(frame)[:2])
+        nodes = node_inputs(frame, points["pc"], int(self.conf["nodes"]), int(self.conf["node_pool"]))
+        inputs = {"image": image_input(frame.image, self.conf), **points, **nodes}
         return {k: v.contiguous().to(device) for k, v in inputs.items()}
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:

@@ -58,9 +58,10 @@ from i2pbench.layers.peer_inputs import (
     cell_corners,
     crop_offsets,
     empty_cloud,
-    farthest_nodes,
     finite_returns,
-    network_image,
+    image_input,
+    node_inputs,
+    point_inputs,
     voxels_with_normals,
 )
 from i2pbench.layers.pointnet2 import frame_seed
@@ -160,21 +161,9 @@ class OfficialDeepI2P(BatchedStage, Matcher):
     ) -> dict[str, torch.Tensor]:
         """the network's inputs: image [3 x 160 x 512] (0-255), cloud and normals [3 x N] in camera axes, intensity
         [1 x N], nodes [3 x 128] each."""
-        from scipy.spatial import cKDTree
-
-        cloud, normals, _, _ = network_cloud(frame, int(self.conf["normals_points"]))
-        xyz = np.asarray(kp3d.xyz, np.float32)
-        _, row = cKDTree(cloud).query(xyz, k=1)
-        pc = xyz @ LIDAR_TO_CAMERA_AXES.T
-        rng = np.random.default_rng(frame_seed(frame))
-        nodes = [farthest_nodes(pc, int(self.conf["nodes"]), int(self.conf["node_pool"]), rng) for _ in range(2)]
-        image = torch.from_numpy(network_image(frame.image, self.conf).astype(np.float32)).permute(2, 0, 1)
-        sn = normals[row] @ LIDAR_TO_CAMERA_AXES.T
-        inputs = {
-            "image": image, "pc": torch.from_numpy(pc.T.copy()), "sn": torch.from_numpy(sn.T.copy()),
-            "intensity": torch.from_numpy(np.asarray(kp3d.reflectance, np.float32))[None],
-            "node_a": torch.from_numpy(nodes[0].T.copy()), "node_b": torch.from_numpy(nodes[1].T.copy()),
-        }  # fmt: skip
+        points = point_inputs(kp3d, *network_cloud(frame, int(self.conf["normals_points"]))[:2])
+        nodes = node_inputs(frame, points["pc"], int(self.conf["nodes"]), int(self.conf["node_pool"]))
+        inputs = {"image": image_input(frame.image, self.conf, divide_by=1.0), **points, **nodes}
         return {k: v.contiguous().to(device) for k, v in inputs.items()}
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
