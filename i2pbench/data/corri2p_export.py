@@ -27,12 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
+from ..layers.peer_inputs import estimate_up_normals, open3d_voxels
 from .images import read_image
 from .kitti import _parse_calib, sequence_stems
 
-VOXEL_M = 0.1  # the scripts' downsample_voxel_size
-NORMAL_RADIUS_M = 0.6  # sn_radius
-NORMAL_MAX_NN = 30  # sn_max_nn
 POINTS_DIR = "pc_npy_with_normal"
 
 
@@ -65,12 +63,9 @@ def read_scan(path: Path) -> np.ndarray:
 def _grid(scan: np.ndarray):
     """Open3D's 0.1 m voxel grid of a scan (the point cloud object, for normals) and each voxel point's reflectance,
     the nearest raw return's."""
-    import open3d as o3d
     from scipy.spatial import cKDTree
 
-    cloud = o3d.geometry.PointCloud()
-    cloud.points = o3d.utility.Vector3dVector(scan[:, :3].astype(np.float64))
-    down = cloud.voxel_down_sample(voxel_size=VOXEL_M)
+    down = open3d_voxels(scan[:, :3])
     _, nearest = cKDTree(scan[:, :3]).query(np.asarray(down.points), k=1)
     return down, scan[nearest, 3]
 
@@ -83,12 +78,8 @@ def grid_points(scan: np.ndarray) -> np.ndarray:
 
 def points_with_normals(scan: np.ndarray) -> np.ndarray:
     """[7 x V] float32: the voxel grid's points, their nearest raw return's reflectance and their +z normals."""
-    import open3d as o3d
-
     down, reflectance = _grid(scan)
-    down.estimate_normals(search_param=o3d.geometry.KDTreeSearchParamHybrid(radius=NORMAL_RADIUS_M,
-                                                                            max_nn=NORMAL_MAX_NN))  # fmt: skip
-    down.orient_normals_to_align_with_direction([0.0, 0.0, 1.0])
+    estimate_up_normals(down)
     xyz, normals = np.asarray(down.points), np.asarray(down.normals)
     return np.concatenate([xyz.T, reflectance[None], normals.T], axis=0).astype(np.float32)
 

@@ -32,8 +32,6 @@ from i2pbench.api import (
     MATCHES,
     BatchedStage,
     Device,
-    Extractor2D,
-    Extractor3D,
     Features,
     Frame,
     Keypoints2D,
@@ -41,10 +39,16 @@ from i2pbench.api import (
     Matcher,
     Matches,
 )
-from i2pbench.layers.pointnet2 import frame_seed
+from i2pbench.layers.peer_inputs import (
+    CropCells,
+    DrawnCloud,
+    image_input,
+    point_inputs,
+    voxel_cloud,
+)
 
 from .official.network import VP2PMatchNet
-from .prepare import LIDAR_TO_CAMERA_AXES, grid_pixels, network_image, pixel_cells, voxel_cloud
+from .prepare import STRIDE, pixel_cells
 
 NUM_POINTS = 40960  # utils/options.py input_pt_num
 # the authors' image preparation (kitti_dataset.py:306-319; options.py img_W x img_H): a conf of the grid and of the
@@ -52,29 +56,20 @@ NUM_POINTS = 40960  # utils/options.py input_pt_num
 CROP: dict[str, Any] = {"scale": 0.5, "crop": (512, 160)}
 
 
-class OfficialGrid(Extractor2D):
+class OfficialGrid(CropCells):
     """Every stride-4 cell of the authors' crop, as the frame's pixel their PnP puts it at (module docstring)."""
 
     name = "vp2p-match-official-grid"
     default_conf: ClassVar[dict[str, Any]] = dict(CROP)
-
-    def __call__(self, frame: Frame) -> Keypoints2D:
-        width, height = frame.image_size
-        return Keypoints2D(uv=grid_pixels(width, height, self.conf))
+    cell_px = STRIDE
 
 
-class OfficialPoints(Extractor3D):
+class OfficialPoints(DrawnCloud):
     """A seeded 40,960 of the scan's 0.1 m voxel centroids, in the order drawn (module docstring)."""
 
     name = "vp2p-match-official-points"
     default_conf: ClassVar[dict[str, Any]] = {"max_keypoints": NUM_POINTS, "seed": 0}
-
-    def __call__(self, frame: Frame) -> Keypoints3D:
-        xyz, _, intensity, rows = voxel_cloud(frame)
-        count = int(self.conf["max_keypoints"])
-        rng = np.random.default_rng([frame_seed(frame), int(self.conf["seed"])])
-        pick = rng.choice(len(xyz), count, replace=False) if len(xyz) > count else rng.permutation(len(xyz))
-        return Keypoints3D(index=rows[pick].astype(np.int64), xyz=xyz[pick], reflectance=intensity[pick])
+    in_draw_order = True
 
 
 def confident_pairs(
@@ -121,18 +116,7 @@ class OfficialVP2PMatch(BatchedStage, Matcher):
         self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, device: Device = "cpu", cache: dict | None = None
     ) -> dict[str, torch.Tensor]:
         """the network's inputs: image [3 x 160 x 512], cloud and normals [3 x N] in camera axes, intensity [1 x N]."""
-        from scipy.spatial import cKDTree
-
-        voxels, normals, _, _ = voxel_cloud(frame)
-        xyz = np.asarray(kp3d.xyz, np.float32)
-        _, row = cKDTree(voxels).query(xyz, k=1)
-        image = torch.from_numpy(network_image(frame.image, self.conf).astype(np.float32) / 255.0).permute(2, 0, 1)
-        inputs = {
-            "img": image,
-            "pc": torch.from_numpy((xyz @ LIDAR_TO_CAMERA_AXES.T).T.copy()),
-            "sn": torch.from_numpy((normals[row] @ LIDAR_TO_CAMERA_AXES.T).T.copy()),
-            "intensity": torch.from_numpy(np.asarray(kp3d.reflectance, np.float32))[None],
-        }
+        inputs = {"img": image_input(frame.image, self.conf), **point_inputs(kp3d, *voxel_cloud(frame)[:2])}
         return {k: v.contiguous().to(device) for k, v in inputs.items()}
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:

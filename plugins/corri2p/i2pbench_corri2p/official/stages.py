@@ -29,7 +29,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
-import cv2
 import numpy as np
 import torch
 
@@ -39,8 +38,6 @@ from i2pbench.api import (
     MATCHES,
     BatchedStage,
     Device,
-    Extractor2D,
-    Extractor3D,
     Features,
     Frame,
     Keypoints2D,
@@ -48,119 +45,49 @@ from i2pbench.api import (
     Matcher,
     Matches,
 )
-from i2pbench.layers.pointnet2 import frame_seed
+from i2pbench.layers import peer_inputs
+from i2pbench.layers.peer_inputs import (
+    CropCells,
+    DrawnCloud,
+    cell_corners,
+    image_input,
+    node_inputs,
+    point_inputs,
+    voxel_cloud,
+)
+from i2pbench.layers.peer_inputs import network_image as network_image  # the official crop, read by the tests
 
 from .network import IMAGE_SIZE, NODES, NUM_POINTS, CorrI2PNet
 
 STRIDE = 4  # the decoder's output stride
-LIDAR_TO_CAMERA_AXES = np.array([[0, -1, 0], [0, 0, -1], [1, 0, 0]], np.float32)
 # the authors' image preparation (options.py crop_original_top_rows, img_scale, img_W x img_H): a conf of the grid
 # and of the matcher, which must agree (the official size pins both to these)
 CROP: dict[str, Any] = {"top_rows": 50, "scale": 0.5, "crop": (IMAGE_SIZE[1], IMAGE_SIZE[0])}
 
 
-def crop_offsets(width: int, height: int, crop: Mapping[str, Any]) -> tuple[int, int] | None:
-    """(dx, dy) of the centre crop in the scaled image (rows below `top_rows`), as the loader's val mode; None for a
-    frame too small to hold it."""
-    scaled_w = round(width * crop["scale"])
-    scaled_h = round((height - crop["top_rows"]) * crop["scale"])
-    crop_w, crop_h = crop["crop"]
-    if scaled_w < crop_w or scaled_h < crop_h:
-        return None
-    return (scaled_w - crop_w) // 2, (scaled_h - crop_h) // 2
-
-
-def network_image(image: np.ndarray, crop: Mapping[str, Any]) -> np.ndarray:
-    """the frame's RGB image -> the authors' crop (H x W x 3 uint8); the frame must hold it (crop_offsets)."""
-    cut = image[crop["top_rows"] :]
-    size = (round(cut.shape[1] * crop["scale"]), round(cut.shape[0] * crop["scale"]))
-    scaled = cv2.resize(cut, size, interpolation=cv2.INTER_LINEAR)
-    dx, dy = crop_offsets(image.shape[1], image.shape[0], crop)
-    crop_w, crop_h = crop["crop"]
-    return np.ascontiguousarray(scaled[dy : dy + crop_h, dx : dx + crop_w])
-
-
 def grid_pixels(width: int, height: int, crop: Mapping[str, Any] = CROP) -> np.ndarray:
-    """the full-resolution pixel of each stride-4 cell of the crop, raster order -> [cells x 2]; none for a frame
-    too small to hold the crop."""
-    offsets = crop_offsets(width, height, crop)
-    if offsets is None:
-        return np.zeros((0, 2), np.float32)
-    (dx, dy), (crop_w, crop_h) = offsets, crop["crop"]
-    rows, cols = np.divmod(np.arange((crop_h // STRIDE) * (crop_w // STRIDE)), crop_w // STRIDE)
-    step, scale = STRIDE / crop["scale"], 1 / crop["scale"]
-    return np.stack([step * cols + scale * dx, step * rows + scale * dy + crop["top_rows"]], 1).astype(np.float32)
+    """the full-resolution pixel of each stride-4 cell of the crop, raster order -> [cells x 2] (peer_inputs)."""
+    return cell_corners(width, height, crop, STRIDE)
 
 
 def pixel_cells(uv: np.ndarray, width: int, height: int, crop: Mapping[str, Any] = CROP) -> np.ndarray:
-    """the stride-4 cell of the crop each pixel uv [M x 2] falls in (the inverse of grid_pixels, whose pixels are
-    their cells' corners), raster order -> [M] int64; -1 outside the crop."""
-    offsets = crop_offsets(width, height, crop)
-    if offsets is None:
-        return np.full(len(uv), -1, np.int64)
-    (dx, dy), (crop_w, crop_h) = offsets, crop["crop"]
-    step = STRIDE / crop["scale"]
-    col = np.floor((uv[:, 0] - dx / crop["scale"]) / step).astype(np.int64)
-    row = np.floor((uv[:, 1] - crop["top_rows"] - dy / crop["scale"]) / step).astype(np.int64)
-    inside = (col >= 0) & (col < crop_w // STRIDE) & (row >= 0) & (row < crop_h // STRIDE)
-    return np.where(inside, row * (crop_w // STRIDE) + col, -1)
+    """the stride-4 cell of the crop each pixel uv [M x 2] falls in, raster order -> [M] int64; -1 outside."""
+    return peer_inputs.pixel_cells(uv, width, height, crop, STRIDE)
 
 
-def voxel_cloud(frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """the scan's 0.1 m voxel centroids [V x 3], their normals [V x 3], nearest-return intensity [V] and row [V]."""
-    import open3d as o3d
-    from scipy.spatial import cKDTree
-
-    finite = np.flatnonzero(np.isfinite(frame.points).all(1))
-    raw = frame.points[finite]
-    if len(raw) == 0:
-        empty = np.zeros((0, 3), np.float32)
-        return empty, empty, np.zeros(0, np.float32), np.zeros(0, np.int64)
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(raw[:, :3].astype(np.float64)))
-    down = cloud.voxel_down_sample(voxel_size=0.1)
-    down.estimate_normals(search_param=o3d.geometry.KDTreeSearchParamHybrid(radius=0.6, max_nn=30))
-    down.orient_normals_to_align_with_direction([0, 0, 1])
-    xyz = np.asarray(down.points, np.float32)
-    _, nearest = cKDTree(raw[:, :3]).query(xyz, k=1)
-    return xyz, np.asarray(down.normals, np.float32), raw[nearest, 3].astype(np.float32), finite[nearest]
-
-
-def farthest_nodes(points: np.ndarray, count: int, pool: int, rng: np.random.Generator) -> np.ndarray:
-    """the loader's node sampling: FPS (float64, first index at a tie, from a random start) over a random
-    pool * count of points [N x 3] -> [count x 3]."""
-    subset = points[rng.choice(len(points), min(pool * count, len(points)), replace=False)].astype(np.float64)
-    # fewer points than nodes: FPS repeats a point once all are taken, as the loader's does
-    chosen = [int(rng.integers(len(subset)))]
-    dist = ((subset - subset[chosen[0]]) ** 2).sum(1)
-    for _ in range(1, count):
-        chosen.append(int(np.argmax(dist)))
-        dist = np.minimum(dist, ((subset - subset[chosen[-1]]) ** 2).sum(1))
-    return subset[chosen].astype(np.float32)
-
-
-class OfficialGrid(Extractor2D):
+class OfficialGrid(CropCells):
     """Every stride-4 cell of the authors' crop, as the frame's pixel their PnP puts it at (module docstring)."""
 
     name = "corri2p-official-grid"
     default_conf: ClassVar[dict[str, Any]] = dict(CROP)
-
-    def __call__(self, frame: Frame) -> Keypoints2D:
-        width, height = frame.image_size
-        return Keypoints2D(uv=grid_pixels(width, height, self.conf))
+    cell_px = STRIDE
 
 
-class OfficialPoints(Extractor3D):
+class OfficialPoints(DrawnCloud):
     """A seeded 40,960 of the scan's 0.1 m voxel centroids (module docstring)."""
 
     name = "corri2p-official-points"
     default_conf: ClassVar[dict[str, Any]] = {"max_keypoints": NUM_POINTS, "seed": 0}
-
-    def __call__(self, frame: Frame) -> Keypoints3D:
-        xyz, _, intensity, rows = voxel_cloud(frame)
-        count = int(self.conf["max_keypoints"])
-        rng = np.random.default_rng([frame_seed(frame), int(self.conf["seed"])])
-        pick = np.sort(rng.choice(len(xyz), count, replace=False)) if len(xyz) > count else np.arange(len(xyz))
-        return Keypoints3D(index=rows[pick].astype(np.int64), xyz=xyz[pick], reflectance=intensity[pick])
 
 
 class OfficialCorrI2P(BatchedStage, Matcher):
@@ -190,20 +117,9 @@ class OfficialCorrI2P(BatchedStage, Matcher):
     ) -> dict[str, torch.Tensor]:
         """the network's inputs: image [3 x 160 x 512], cloud and normals [3 x N] in camera axes, intensity
         [1 x N], nodes [3 x M] each."""
-        voxels, normals, _, _ = voxel_cloud(frame)
-        from scipy.spatial import cKDTree
-
-        _, row = cKDTree(voxels).query(np.asarray(kp3d.xyz, np.float32), k=1)
-        pc = np.asarray(kp3d.xyz, np.float32) @ LIDAR_TO_CAMERA_AXES.T
-        rng = np.random.default_rng(frame_seed(frame))
-        nodes = [farthest_nodes(pc, int(self.conf["nodes"]), int(self.conf["node_pool"]), rng) for _ in range(2)]
-        image = torch.from_numpy(network_image(frame.image, self.conf).astype(np.float32) / 255.0).permute(2, 0, 1)
-        sn = normals[row] @ LIDAR_TO_CAMERA_AXES.T
-        inputs = {
-            "image": image, "pc": torch.from_numpy(pc.T.copy()), "sn": torch.from_numpy(sn.T.copy()),
-            "intensity": torch.from_numpy(np.asarray(kp3d.reflectance, np.float32))[None],
-            "node_a": torch.from_numpy(nodes[0].T.copy()), "node_b": torch.from_numpy(nodes[1].T.copy()),
-        }  # fmt: skip
+        points = point_inputs(kp3d, *voxel_cloud(frame)[:2])
+        nodes = node_inputs(frame, points["pc"], int(self.conf["nodes"]), int(self.conf["node_pool"]))
+        inputs = {"image": image_input(frame.image, self.conf), **points, **nodes}
         return {k: v.contiguous().to(device) for k, v in inputs.items()}
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
