@@ -142,6 +142,28 @@ class _Code:
         return (print, ("this never runs",))
 
 
+@pytest.mark.parametrize("importer", ["corri2p-official", "deepi2p-official", "vp2p-match-official"])
+def test_every_official_importer_reads_through_the_one_checked_reader(importer, tmp_path, capsys):
+    """the official sizes landed after the reader: a non-string key, a text file and an empty file are refused by
+    each importer as by edgeregnet-official, naming the file, before any key of the authors' layout is checked."""
+    intkey, text, empty = tmp_path / "intkey.pth", tmp_path / "notes.pth", tmp_path / "empty.pth"
+    torch.save({"conv.weight": torch.zeros(1), 5: torch.zeros(1)}, intkey)
+    text.write_text("my notes\n")
+    empty.touch()
+    said = {
+        intkey: f"{intkey}: key 5 (int) is not a parameter name (a string)",
+        text: f"{text} is a text file, not a torch file of tensors",
+        empty: f"{empty} is empty (0 bytes), not a torch file",
+    }
+    for source, message in said.items():
+        out = tmp_path / "W.pt"
+        assert cli(capsys, "weights", "import", importer, str(source), "--out", str(out)) == (
+            2,
+            f"i2pbench: error: {message}",
+        )
+        assert not out.exists()
+
+
 def test_unreadable_sources_say_what_they_are_and_never_advise_running_their_code(tmp_path, capsys):
     (tmp_path / "empty.t7").write_bytes(b"")
     (tmp_path / "text.t7").write_text("epoch 1 loss 0.3\n")

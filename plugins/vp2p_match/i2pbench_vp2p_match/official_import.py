@@ -26,19 +26,6 @@ FORMAT = "VP2P-Match VP2PMatchNet state dict"
 SIZE, STAGE, PREFIX = "official", "matcher", "net."  # the size and stage the network runs in (stages.py)
 
 
-def read_state(path: Path) -> dict[str, torch.Tensor]:
-    """a state dict of tensors from a torch file (`weights_only`), unwrapped from a {'state_dict': ...}."""
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise WeightsError(f"{path} is not a readable torch file: {exc}") from exc
-    if isinstance(state, Mapping) and isinstance(state.get("state_dict"), Mapping):
-        state = state["state_dict"]
-    if not isinstance(state, Mapping) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise WeightsError(f"{path} holds no state dict of tensors")
-    return dict(state)
-
-
 def misfits(state: Mapping[str, torch.Tensor], expected: Mapping[str, torch.Tensor]) -> list[str]:
     """every key missing, unexpected or of another shape than the network's."""
     problems = [f"missing key {k}" for k in expected if k not in state]
@@ -53,7 +40,7 @@ def misfits(state: Mapping[str, torch.Tensor], expected: Mapping[str, torch.Tens
 
 def checked_state(path: Path, net: VP2PMatchNet) -> dict[str, torch.Tensor]:
     """the file's state dict, refused with the misfitting keys named unless it is exactly `net`'s."""
-    state = read_state(path)
+    state = ImportedWeights.read(path)
     problems = misfits(state, net.state_dict())
     if problems:
         shown = "; ".join(problems[:12]) + (f"; and {len(problems) - 12} more" if len(problems) > 12 else "")

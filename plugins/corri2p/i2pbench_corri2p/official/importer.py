@@ -60,22 +60,9 @@ def check(state: Mapping[str, torch.Tensor], unknown: list[str], source: str) ->
         raise WeightsError(f"{source} is not a state dict of the authors' CorrI2P network: {shown}")
 
 
-def read_state(path: Path) -> dict[str, torch.Tensor]:
-    """a state dict from a torch file (tensors only: `weights_only`), unwrapped from a {'state_dict': ...}."""
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise WeightsError(f"{path} is not a readable torch file: {exc}") from exc
-    if isinstance(state, Mapping) and isinstance(state.get("state_dict"), Mapping):
-        state = state["state_dict"]
-    if not isinstance(state, Mapping) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise WeightsError(f"{path} holds no state dict of tensors")
-    return dict(state)
-
-
 def import_official(path: Path) -> ImportedWeights:
     """a state dict of the authors' CorrI2P as the official size's weights."""
-    state, unknown, left = split(read_state(path))
+    state, unknown, left = split(ImportedWeights.read(path))
     check(state, unknown, str(path))
     meta = {"format": "CorrI2P network.CorrI2P state dict", "dropped": sorted(k.removeprefix("module.") for k in left)}
     return ImportedWeights(SIZE, {STAGE: state}, {"release": TRAINED_ON}, meta)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from i2pbench.api import ImportedWeights
 
-from .weights import RELEASES, UNUSED, read_state, to_network
+from .weights import RELEASES, UNUSED, to_network
 
 SIZE = "official"
 STAGE = "matcher"
@@ -30,7 +30,7 @@ def import_official(path: Path) -> ImportedWeights:
     from .stages import OfficialDeepI2P
 
     stage = OfficialDeepI2P()
-    state = read_state(path)
+    state = ImportedWeights.read(path)
     network = to_network(state, stage.net.state_dict(), str(path))
     dropped = sorted(k.removeprefix("module.") for k in state if UNUSED.fullmatch(k.removeprefix("module.")))
     meta = {"format": "DeepI2P models.networks_united.KeypointDetector state dict", "dropped": dropped,

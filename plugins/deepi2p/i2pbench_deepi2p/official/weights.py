@@ -15,7 +15,7 @@ from pathlib import Path
 
 import torch
 
-from i2pbench.api import WeightsError
+from i2pbench.api import ImportedWeights, WeightsError
 
 from .network import DeepI2PNetwork
 
@@ -50,23 +50,10 @@ RELEASES = {  # image size -> what the authors' checkpoints at that size were tr
 }
 
 
-def read_state(path: Path) -> dict[str, torch.Tensor]:
-    """a state dict of tensors from a torch file (`weights_only`), unwrapped from a {'state_dict': ...}."""
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise WeightsError(f"{path} is not a readable torch file: {exc}") from exc
-    if isinstance(state, Mapping) and isinstance(state.get("state_dict"), Mapping):
-        state = state["state_dict"]
-    if not isinstance(state, Mapping) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise WeightsError(f"{path} holds no state dict of tensors")
-    return dict(state)
-
-
 def import_official(path: Path, image_hw: tuple[int, int] = (160, 512)) -> tuple[DeepI2PNetwork, dict[str, str]]:
     """the authors' checkpoint loaded into the official network for their input size (KITTI 160 x 512, Oxford
     384 x 640) -> (network, record: file, sha256, what it was trained on)."""
     network = DeepI2PNetwork(image_hw)
-    network.load_state_dict(to_network(read_state(path), network.state_dict(), str(path)))
+    network.load_state_dict(to_network(ImportedWeights.read(path), network.state_dict(), str(path)))
     digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
     return network, {"file": Path(path).name, "sha256": digest, "trained_on": RELEASES.get(tuple(image_hw), "")}
