@@ -48,5 +48,5 @@ def test_a_wrong_key_or_shape_is_refused_by_name(tmp_path, authors_state):
 
 def test_a_file_without_a_state_dict_is_refused(tmp_path):
     (tmp_path / "notes.pth").write_text("not a checkpoint")
-    with pytest.raises(WeightsError, match="notes.pth is not a readable torch file"):
+    with pytest.raises(WeightsError, match="notes.pth is a text file, not a torch file of tensors"):
         load_official(tmp_path / "notes.pth")
