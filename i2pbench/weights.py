@@ -12,6 +12,7 @@ import hashlib
 import json
 import os
 import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -86,6 +87,22 @@ class ImportedWeights:
     def read(path: str | Path) -> dict[str, torch.Tensor]:
         """the state dict in another code base's torch file, for an importer: `read_state_dict`."""
         return read_state_dict(path)
+
+    @staticmethod
+    def require_fit(state: Mapping[str, torch.Tensor], expected: Mapping[str, torch.Tensor], what: str) -> None:
+        """refuse, naming the keys (the first 12 and a count), a state whose keys or shapes are not exactly
+        `expected`'s: every importer's last check before its state becomes a checkpoint. `what` says what the state
+        failed to be, as `FILE is not <what>: ...`."""
+        problems = [f"missing key {k}" for k in expected if k not in state]
+        problems += [f"unexpected key {k}" for k in state if k not in expected]
+        problems += [
+            f"key {k}: shape {tuple(state[k].shape)}, expected {tuple(v.shape)}"
+            for k, v in expected.items()
+            if k in state and state[k].shape != v.shape
+        ]
+        if problems:
+            shown = "; ".join(problems[:12]) + (f"; and {len(problems) - 12} more" if len(problems) > 12 else "")
+            raise WeightsError(f"{what}: {shown}")
 
 
 def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:

@@ -112,7 +112,7 @@ def test_reference_import_refuses_a_file_that_does_not_fit(official_file, tmp_pa
     torch.save(state, tmp_path / "bad.t7")
     with pytest.raises(Exception, match="extra.weight") as err:
         official_import.import_official(tmp_path / "bad.t7")
-    assert "missing exchanger key kenc3d.12.bias" in str(err.value)
+    assert "missing key exchanger.kenc3d.12.bias" in str(err.value)
     assert "layers.0.mlp.0.weight: shape (512, 256), expected (512, 512)" in str(err.value)
 
 

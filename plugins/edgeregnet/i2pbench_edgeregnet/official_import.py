@@ -21,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-from i2pbench.api import ImportedWeights, WeightsError
+from i2pbench.api import ImportedWeights
 
 SIZE = "official"
 TRAINED_ON = "authors' release (KITTI 00-08)"
@@ -78,20 +78,11 @@ def expected() -> dict[str, dict[str, torch.Tensor]]:
 
 
 def check(state: Mapping[str, Mapping[str, torch.Tensor]], unknown: list[str], source: str) -> None:
-    """refuse, naming the keys, a state whose keys or shapes are not the official size's."""
-    problems = [f"unexpected key {k}" for k in unknown]
-    for kind, want in expected().items():
-        have = state.get(kind, {})
-        problems += [f"missing {kind} key {k}" for k in want if k not in have]
-        problems += [f"unexpected {kind} key {k}" for k in have if k not in want]
-        problems += [
-            f"{kind} key {k}: shape {tuple(have[k].shape)}, expected {tuple(v.shape)}"
-            for k, v in want.items()
-            if k in have and have[k].shape != v.shape
-        ]
-    if problems:
-        shown = "; ".join(problems[:12]) + (f"; and {len(problems) - 12} more" if len(problems) > 12 else "")
-        raise WeightsError(f"{source} is not the authors' AttentionModule state dict: {shown}")
+    """refuse, naming the keys (as `<stage kind>.<key>`), a state whose keys or shapes are not the official size's."""
+    flat = {f"{kind}.{k}": v for kind, stage in state.items() for k, v in stage.items()}
+    want = {f"{kind}.{k}": v for kind, stage in expected().items() for k, v in stage.items()}
+    ImportedWeights.require_fit({**flat, **dict.fromkeys(unknown, torch.empty(0))}, want,
+                                f"{source} is not the authors' AttentionModule state dict")  # fmt: skip
 
 
 def import_official(path: Path) -> ImportedWeights:

@@ -12,12 +12,11 @@ matcher stage's `net.`.
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Mapping
 from pathlib import Path
 
 import torch
 
-from i2pbench.api import ImportedWeights, WeightsError
+from i2pbench.api import ImportedWeights
 
 from .official.network import VP2PMatchNet
 
@@ -26,25 +25,10 @@ FORMAT = "VP2P-Match VP2PMatchNet state dict"
 SIZE, STAGE, PREFIX = "official", "matcher", "net."  # the size and stage the network runs in (stages.py)
 
 
-def misfits(state: Mapping[str, torch.Tensor], expected: Mapping[str, torch.Tensor]) -> list[str]:
-    """every key missing, unexpected or of another shape than the network's."""
-    problems = [f"missing key {k}" for k in expected if k not in state]
-    problems += [f"unexpected key {k}" for k in state if k not in expected]
-    problems += [
-        f"key {k}: shape {tuple(state[k].shape)}, expected {tuple(v.shape)}"
-        for k, v in expected.items()
-        if k in state and state[k].shape != v.shape
-    ]
-    return problems
-
-
 def checked_state(path: Path, net: VP2PMatchNet) -> dict[str, torch.Tensor]:
     """the file's state dict, refused with the misfitting keys named unless it is exactly `net`'s."""
     state = ImportedWeights.read(path)
-    problems = misfits(state, net.state_dict())
-    if problems:
-        shown = "; ".join(problems[:12]) + (f"; and {len(problems) - 12} more" if len(problems) > 12 else "")
-        raise WeightsError(f"{path} is not the authors' VP2PMatchNet state dict: {shown}")
+    ImportedWeights.require_fit(state, net.state_dict(), f"{path} is not the authors' VP2PMatchNet state dict")
     return state
 
 

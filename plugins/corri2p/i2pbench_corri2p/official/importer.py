@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from i2pbench.api import ImportedWeights, WeightsError
+from i2pbench.api import ImportedWeights
 
 from .checkpoint import dropped, ours
 
@@ -45,19 +45,10 @@ def split(state: Mapping[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor], l
 
 
 def check(state: Mapping[str, torch.Tensor], unknown: list[str], source: str) -> None:
-    """refuse, naming the keys, a state whose keys or shapes are not the official size's."""
-    want = expected()
-    problems = [f"unexpected key {k}" for k in unknown]
-    problems += [f"missing key {k}" for k in want if k not in state]
-    problems += [f"unexpected key {k}" for k in state if k not in want]
-    problems += [
-        f"key {k}: shape {tuple(state[k].shape)}, expected {tuple(v.shape)}"
-        for k, v in want.items()
-        if k in state and state[k].shape != v.shape
-    ]
-    if problems:
-        shown = "; ".join(problems[:12]) + (f"; and {len(problems) - 12} more" if len(problems) > 12 else "")
-        raise WeightsError(f"{source} is not a state dict of the authors' CorrI2P network: {shown}")
+    """refuse, naming the keys, a state whose keys or shapes are not the official size's (a key no rule maps is
+    kept under its own name, so it is named as unexpected)."""
+    ImportedWeights.require_fit({**state, **dict.fromkeys(unknown, torch.empty(0))}, expected(),
+                                f"{source} is not a state dict of the authors' CorrI2P network")  # fmt: skip
 
 
 def import_official(path: Path) -> ImportedWeights:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import torch
 
-from i2pbench.api import ImportedWeights, WeightsError
+from i2pbench.api import ImportedWeights
 
 from .network import DeepI2PNetwork
 
@@ -31,16 +31,7 @@ def to_network(
         name = key.removeprefix("module.")
         if not UNUSED.fullmatch(name):
             ours[name] = value
-    problems = [f"unexpected key {k}" for k in ours if k not in expected]
-    problems += [f"missing key {k}" for k in expected if k not in ours]
-    problems += [
-        f"key {k}: shape {tuple(v.shape)}, expected {tuple(expected[k].shape)}"
-        for k, v in ours.items()
-        if k in expected and v.shape != expected[k].shape
-    ]
-    if problems:
-        shown = "; ".join(problems[:12]) + (f"; and {len(problems) - 12} more" if len(problems) > 12 else "")
-        raise WeightsError(f"{source} is not the authors' DeepI2P KeypointDetector state dict: {shown}")
+    ImportedWeights.require_fit(ours, expected, f"{source} is not the authors' DeepI2P KeypointDetector state dict")
     return ours
 
 
