@@ -183,4 +183,5 @@ class Protocol:
             match_radius_px=sensor.match_radius_px,
             T_init=np.eye(4) if camera else sensor.T_cam_lidar,  # camera <- the unmoved cloud's frame
             K_gt=None if np.array_equal(seen.K, K_true) else K_true,
+            inputs=self.name if self.resamples() or camera else "",
         )

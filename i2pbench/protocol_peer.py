@@ -149,6 +149,7 @@ def nuscenes_layout_frame(protocol, sensor: SensorFrame, loader: NuScenesLoader)
         match_radius_px=sensor.match_radius_px,
         T_init=np.eye(4),
         K_gt=None if np.array_equal(K, K_true) else K_true,
+        inputs=protocol.name,
     )
 
 
@@ -188,4 +189,5 @@ def peer_frame(protocol, sensor: SensorFrame) -> Frame:
         match_radius_px=sensor.match_radius_px,
         T_init=np.eye(4),
         K_gt=None if np.array_equal(K, K_true) else K_true,
+        inputs=protocol.name,
     )

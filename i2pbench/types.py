@@ -64,6 +64,10 @@ class Frame:
     match_radius_px: float = 3.0
     T_init: np.ndarray | None = None  # [4 x 4] the pose a solver would assume with no information (for overlays)
     K_gt: np.ndarray | None = None  # [3 x 3] float64 true intrinsics when K is corrupted; None: K is the true one
+    # the protocol card whose own inputs these are (image cut, resized and cropped; cloud voxelised, drawn and in the
+    # camera frame): stages that prepare their authors' inputs from the dataset's frame cannot prepare them again;
+    # "" for the dataset's frame, in its LiDAR axes
+    inputs: str = ""
 
     @property
     def image_size(self) -> tuple[int, int]:

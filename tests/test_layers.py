@@ -62,7 +62,7 @@ LAYER_CODE = {
     "kernels": (1, "4a6546946f55"),  # FPS sums rounded squares unfused, as the authors' PointNet++ (issue 39)
     "mlp": (0, "1e8fb86b56f9"),
     "nodes": (0, "57e284127b45"),
-    "peer_inputs": (0, "0b74d4a1d908"),  # moved from the CorrI2P, DeepI2P, VP2P-Match official stages: same outputs
+    "peer_inputs": (1, "f237d6447cc1"),  # a protocol card's already-prepared frame is refused (was: zero cells)
     "pointnet2": (1, "ee6c35457d80"),  # the torch FPS rounds as the compiled one (issue 39); seeded_cloud: same
     "point_voxel": (0, "6454dd9cb5d5"),
     "resnet": (0, "38d6e5b5dcfe"),

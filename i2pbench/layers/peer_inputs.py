@@ -25,10 +25,11 @@ import numpy as np
 import torch
 
 from ..components import Extractor2D, Extractor3D
+from ..errors import StageError
 from ..types import Frame, Keypoints2D, Keypoints3D
 from .pointnet2 import frame_seed
 
-REVISION = 0  # bump when an output of this module changes for the same inputs (see i2pbench.layers)
+REVISION = 1  # bump when an output of this module changes for the same inputs (see i2pbench.layers)
 
 VOXEL_M = 0.1  # the preprocessed clouds' voxel grid (CorrI2P kitti_pc_bin_to_npy_with_downsample_sn.py)
 NORMAL_RADIUS_M, NORMAL_MAX_NN = 0.6, 30  # the same script's hybrid normal search
@@ -185,6 +186,19 @@ def node_inputs(frame: Frame, pc: torch.Tensor, count: int, pool: int) -> dict[s
     return {"node_a": torch.from_numpy(nodes[0].T.copy()), "node_b": torch.from_numpy(nodes[1].T.copy())}
 
 
+def require_dataset_frame(frame: Frame, component: str) -> None:
+    """refuse a frame a protocol card has already prepared (`Frame.inputs`): its image is already cut, resized and
+    cropped and its cloud drawn and in the camera frame, so preparing the authors' inputs from it again would halve
+    and crop the image twice and turn camera axes as if they were the LiDAR's (zero cells, scrambled points)."""
+    if frame.inputs:
+        width, height = frame.image_size
+        raise StageError(component, f"prepares its authors' inputs from the dataset's frame, but protocol "
+                                    f"'{frame.inputs}' gives the stages its own ({width} x {height} image, "
+                                    f"{len(frame.points)} points in the camera frame), which cannot be prepared "
+                                    f"again; run under the default protocol (the card's rules still apply to the "
+                                    f"run: `i2pbench evaluate RUN --rules {frame.inputs}`)")  # fmt: skip
+
+
 class CropCells(Extractor2D):
     """Every cell of the authors' crop, as the frame's pixel their PnP puts it at; a method's subclass sets `name`,
     `cell_px` and its crop as `default_conf`."""
@@ -192,6 +206,7 @@ class CropCells(Extractor2D):
     cell_px: ClassVar[int]
 
     def __call__(self, frame: Frame) -> Keypoints2D:
+        require_dataset_frame(frame, self.label)
         width, height = frame.image_size
         return Keypoints2D(uv=cell_corners(width, height, self.conf, self.cell_px))
 
@@ -207,6 +222,7 @@ class DrawnCloud(Extractor3D):
         return voxel_cloud(frame)
 
     def __call__(self, frame: Frame) -> Keypoints3D:
+        require_dataset_frame(frame, self.label)
         count = int(self.conf["max_keypoints"])
         xyz, _, intensity, rows = self.cloud(frame, count)
         rng = np.random.default_rng([frame_seed(frame), int(self.conf["seed"])])
