@@ -7,7 +7,7 @@ import copy
 
 import pytest
 import torch
-from i2pbench_edgeregnet.official_attention import AttentionalPropagation, mlp, run_mlp
+from i2pbench_edgeregnet.official.attention import AttentionalPropagation, mlp, run_mlp
 
 from i2pbench.layers.attention import key_mask
 

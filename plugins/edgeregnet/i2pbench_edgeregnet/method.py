@@ -105,17 +105,17 @@ def edgeregnet() -> Method:
         PRESETS,
         tuple(sorted(WEIGHTS_DIR.glob("*.pt"))),
         "edge pixels and points, CNN + PointNet++ encoders, attention exchange, optimal matching, EPnP",
-        importers={"edgeregnet-official": "i2pbench_edgeregnet.official_import:import_official"},
+        importers={"edgeregnet-official": "i2pbench_edgeregnet.official.importer:import_official"},
         title="EdgeRegNet",
     )
 
 
 def official_stages() -> dict[str, LearnedComponent]:
     """the official size's four learned stages at their defaults, built directly (no registry)."""
-    from .official_attention import OfficialAttention
-    from .official_matching import OfficialMatcher
-    from .official_pointnet2 import OfficialPointNet2
-    from .official_superpoint import OfficialSuperPoint
+    from .official.attention import OfficialAttention
+    from .official.matching import OfficialMatcher
+    from .official.pointnet2 import OfficialPointNet2
+    from .official.superpoint import OfficialSuperPoint
 
     classes = (OfficialSuperPoint, OfficialPointNet2, OfficialAttention, OfficialMatcher)
     return {kind: cls() for kind, cls in zip(COMPONENTS, classes, strict=True)}

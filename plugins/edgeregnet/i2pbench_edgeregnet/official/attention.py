@@ -10,7 +10,7 @@ As their code, and unlike attention.py:
   edge points enter with the normalised xyz the 3D branch sees.
 One thing differs in form only: the projections are channels-last Linear layers whose heads are contiguous channel
 blocks (channel = head * D/heads + d). The authors' Conv1d projections interleave them (`view(B, D/heads, heads, N)`:
-channel = d * heads + head); the checkpoint importer (official_import.py) permutes their weights once.
+channel = d * heads + head); the checkpoint importer (importer.py) permutes their weights once.
 """
 
 from __future__ import annotations
@@ -27,9 +27,9 @@ from i2pbench.api import BatchedStage, Component, Device, Exchanger, Frame, Keyp
 from i2pbench.layers.attention import key_mask
 from i2pbench.layers.pointnet2 import seeded_cloud
 
-from .matching import descriptor_dim_mismatch
-from .official_pointnet2 import OfficialPointNet2, normalize
-from .official_superpoint import OfficialSuperPoint
+from ..matching import descriptor_dim_mismatch
+from .pointnet2 import OfficialPointNet2, normalize
+from .superpoint import OfficialSuperPoint
 
 LAYERS = ("self", "cross") * 6  # cali_glue.py:202
 

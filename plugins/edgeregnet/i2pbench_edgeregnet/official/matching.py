@@ -36,9 +36,9 @@ from i2pbench.api import (
     StageError,
 )
 
-from .loss import PADDED
-from .matching import descriptor_dim_mismatch
-from .official_attention import ChannelNorm
+from ..loss import PADDED
+from ..matching import descriptor_dim_mismatch
+from .attention import ChannelNorm
 
 
 def head(widths: tuple[int, ...]) -> nn.Sequential:
