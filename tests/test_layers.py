@@ -65,6 +65,7 @@ LAYER_CODE = {
     "peer_inputs": (0, "0b74d4a1d908"),  # moved from the CorrI2P, DeepI2P, VP2P-Match official stages: same outputs
     "pointnet2": (1, "ee6c35457d80"),  # the torch FPS rounds as the compiled one (issue 39); seeded_cloud: same
     "point_voxel": (0, "6454dd9cb5d5"),
+    "positions": (0, "bba0b2ef6d56"),  # EdgeRegNet's two pixel normalisations, moved from its exchangers: same outputs
     "resnet": (0, "38d6e5b5dcfe"),
     "sampling": (0, "dd084e30084c"),
     "sparse": (0, "862328a80b46"),
