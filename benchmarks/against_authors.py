@@ -183,10 +183,10 @@ def authors_stages(model: torch.nn.Module, cali_glue: types.ModuleType, inputs: 
 
 def our_edgeregnet(state: dict[str, torch.Tensor]) -> dict[str, torch.nn.Module]:
     """the official size's four stages with the authors' state imported (i2pbench's own importer)."""
-    from i2pbench_edgeregnet import official_import
     from i2pbench_edgeregnet.method import official_stages
+    from i2pbench_edgeregnet.official import importer
 
-    split, _ = official_import.split(state)
+    split, _ = importer.split(state)
     stages = official_stages()
     for kind, module in stages.items():
         module.load_state_dict(split[kind])
@@ -214,7 +214,7 @@ def relative(ours: torch.Tensor, ref: np.ndarray) -> float:
 
 def edgeregnet_check(authors: Stages, ours: dict, inputs: dict, outputs: dict) -> dict[str, float]:
     """both exchangers on the recorded descriptors against the recorded GNN outputs."""
-    from i2pbench_edgeregnet.reference import reference_frame
+    from i2pbench_edgeregnet.official.reference import reference_frame
 
     d3, d2 = (torch.from_numpy(outputs[k])[None] for k in ("des3d_fp", "des2d_superpoint"))
     frame, kp2d, kp3d = reference_frame(inputs)
@@ -234,7 +234,7 @@ def edgeregnet_check(authors: Stages, ours: dict, inputs: dict, outputs: dict) -
 def edgeregnet(checkout: Path, args: argparse.Namespace) -> Pair:
     """EdgeRegNet's official size against AttentionModule, on the reference set's frame and weights."""
     from edgeregnet_official import stage_runs  # this folder is on sys.path when the script runs
-    from i2pbench_edgeregnet.reference import reference_frame
+    from i2pbench_edgeregnet.official.reference import reference_frame
 
     from i2pbench.testing.recipe import folder_state
 

@@ -1,11 +1,11 @@
-"""Per-stage CPU latency and model size of EdgeRegNet's learned stages at KITTI size, full and small configs.
+"""Per-stage CPU latency and model size of EdgeRegNet's learned stages at KITTI size, its paper and cpu-size variants.
 
 A synthetic KITTI-sized frame (1241 x 376 image, a 120k-point 64-beam-like sweep) with 3000 + 3000 keypoints for the
-full config and configs.SMALL_KEYPOINTS + SMALL_KEYPOINTS for the small one; content does not change the cost of any
+paper variant and configs.CPU_KEYPOINTS + CPU_KEYPOINTS for the cpu-size one; content does not change the cost of any
 stage. Prints the median of `--repeat` inference runs per stage (after one warm-up), the farthest point sampling
 20,480 -> 5,120 on its own, one training step (forward, loss, backward) and the float32 parameter size.
 
-    .venv/bin/python benchmarks/edgeregnet_latency.py [--repeat 5] [--threads 2] [--configs full small]
+    .venv/bin/python benchmarks/edgeregnet_latency.py [--repeat 5] [--threads 2] [--variants paper cpu-size]
 """
 
 from __future__ import annotations
@@ -98,12 +98,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
-    parser.add_argument("--configs", nargs="+", default=["full", "small"], choices=["full", "small"])
+    parser.add_argument("--variants", nargs="+", default=["paper", "cpu-size"], choices=["paper", "cpu-size"])
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, {args.threads} threads, median of {args.repeat}")
-    variants = {"full": (configs.FULL, configs.FULL_KEYPOINTS), "small": (configs.SMALL, configs.SMALL_KEYPOINTS)}
-    for name in args.configs:
+    variants = {"paper": (configs.PAPER, configs.PAPER_KEYPOINTS), "cpu-size": (configs.CPU, configs.CPU_KEYPOINTS)}
+    for name in args.variants:
         measure(name, *variants[name], args.repeat)
 
 

@@ -16,7 +16,7 @@ import argparse
 import torch
 from edgeregnet_latency import kitti_sized_frame, median_seconds
 from i2pbench_edgeregnet.method import official_stages
-from i2pbench_edgeregnet.official_matching import filter_matches
+from i2pbench_edgeregnet.official.matching import filter_matches
 
 KEYPOINTS = 3000
 

@@ -1,16 +1,16 @@
 """How close EdgeRegNet's learned stages come to what this machine can do, measured in one process.
 
 First the machine: fp32 rates of a 2048^3 matmul, of SDPA on [1, 4, 3000, 64] and of a full-resolution 3x3 64->64
-conv. Then a preset's pipeline, built through the registry (`--preset default`: the CPU size; `edgeregnet-full`: the
+conv. Then a preset's pipeline, built through the registry (`--preset edgeregnet`: the CPU size; `edgeregnet-paper`: the
 paper's), on a KITTI-sized synthetic frame (benchmarks/edgeregnet_latency.py's) with the preset's keypoint count:
 each learned stage's FLOPs, counted by torch's FlopCounterMode, and its median time after a warm-up. The roofline
 of a stage is the time its FLOPs would take at the measured rate of their kernel kind (conv, attention, matmul);
 achieved/roofline is that time over the measured one. Uncounted work (elementwise ops, softmax, gathers, the
 farthest point sampling loop) shows as a lower ratio, not as FLOPs. See docs/performance.md.
 
-    .venv/bin/python benchmarks/roofline.py [--preset default|edgeregnet-full|edgeregnet-official] [--device cpu|cuda]
-        [--amp bf16] [--clock wall|cpu]
-    .venv/bin/python benchmarks/roofline.py --preset edgeregnet-full --device cuda --amp off,bf16   # the GPU check
+    .venv/bin/python benchmarks/roofline.py [--preset edgeregnet|edgeregnet-paper|edgeregnet-official]
+        [--device cpu|cuda] [--amp bf16] [--clock wall|cpu]
+    .venv/bin/python benchmarks/roofline.py --preset edgeregnet-paper --device cuda --amp off,bf16   # the GPU check
 
 `--amp off,bf16` measures both precisions in one process, each against the machine's rates in that precision, and
 ends with the per-frame latency of each: on a GPU that is the prepared check of the paper-size frame. `--rounds R`
@@ -195,7 +195,7 @@ def print_stages(stages: list[Stage], rates: dict[str, float]) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--preset", default="default", help="a registered preset: default (CPU size), edgeregnet-full")
+    parser.add_argument("--preset", default="edgeregnet", help="a preset: edgeregnet (CPU size), edgeregnet-paper")
     parser.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())

@@ -1,14 +1,15 @@
 """Training throughput: the old loop (one frame per step, data work and point grouping in the loop) against the
 batched loop (DataLoader workers, per-frame grouping cache, padded batches), in one process, on synthetic/train.
 
-For each size (`cpu`: the default preset; `paper`: edgeregnet-full) it prints frames/s of each loop and its ratio to
-the old one, their steps taken in turn (so a busy machine slows all of them alike), where a step's time goes (data
-work or data wait, host-to-device copy, forward + loss, backward, optimiser), and the host syncs per step
+For each variant (`cpu-size`: preset edgeregnet; `paper`: edgeregnet-paper) it prints frames/s of each loop and its
+ratio to the old one, their steps taken in turn (so a busy machine slows all of them alike), where a step's time goes
+(data work or data wait, host-to-device copy, forward + loss, backward, optimiser), and the host syncs per step
 (`aten::item` / `aten::_local_scalar_dense` in the profiler) at two cloud sizes, which must not grow with the point
 count. The new loop is measured in steady state: every sample's frame has been seen once, so its extractor outputs
 and grouping come from the cache, as after the first pass over the training split.
 
-    .venv/bin/python benchmarks/training_throughput.py [--sizes cpu paper] [--steps 6] [--batch-size 4] [--workers 1]
+    .venv/bin/python benchmarks/training_throughput.py [--sizes cpu-size paper] [--steps 6] [--batch-size 4]
+        [--workers 1]
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from i2pbench.training.config import TrainConfig
 from i2pbench.training.loop import Trainer
 from i2pbench.training.samples import TrainingSamples, collate_samples
 
-PRESETS = {"cpu": "default", "paper": "edgeregnet-full"}
+PRESETS = {"cpu-size": "edgeregnet", "paper": "edgeregnet-paper"}
 SYNCS = ("aten::item", "aten::_local_scalar_dense")
 
 
@@ -161,7 +162,7 @@ def report(size: str, args: argparse.Namespace, dataset_factory: Callable) -> No
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", nargs="+", choices=sorted(PRESETS), default=["cpu", "paper"])
+    parser.add_argument("--sizes", nargs="+", choices=sorted(PRESETS), default=["cpu-size", "paper"])
     parser.add_argument("--steps", type=int, default=6, help="timed steps per loop")
     parser.add_argument("--batch-size", type=int, default=4)
     parser.add_argument("--workers", type=int, default=1)

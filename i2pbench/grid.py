@@ -52,7 +52,7 @@ def base_combinations(registry: Registry, preset: str | None, stages_named: bool
     With no preset and no "default" registered, a command that names its stages (`stages_named`) starts from an
     empty base, so `--extractor lsd --extractor3d depth ...` works before any default pipeline exists.
     """
-    if preset is None and "default" not in registry.presets:
+    if preset is None and registry.presets.canonical("default") not in registry.presets:  # "default" may be an alias
         if stages_named:
             return [{}]
         raise PluginError(

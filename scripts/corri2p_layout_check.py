@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+from layout_check import compare, head, run_loader
 
 from i2pbench.data.corri2p_export import export_kitti
 from i2pbench.data.corri2p_kitti import Corri2PKitti
@@ -45,44 +44,18 @@ def loader_view(export: Path, view: Path) -> None:
             (view / kind / shown).symlink_to((export / kind / name).resolve(), target_is_directory=True)
 
 
-def run_loader(peer: str, checkout: Path, view: Path, indices: list[int], out: Path) -> dict[str, np.ndarray]:
-    command = [sys.executable, str(LOADER), peer, str(checkout), str(view), str(out), *map(str, indices)]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=900)
-    if done.returncode:
-        raise RuntimeError(f"{peer}'s loader failed:\n{done.stderr[-3000:]}")
-    return dict(np.load(out))
-
-
-def differences(theirs: dict[str, np.ndarray], frame) -> dict[str, float]:
-    """The largest difference per array between a loader's item and i2pbench's frame."""
-    points = theirs["points"]
-    if points.shape != frame.points.shape:
-        return {"points_shape": float("inf")}
-    return {
-        "image": float(np.abs(theirs["image"].astype(int) - frame.image.astype(int)).max()),
-        "K": float(np.abs(theirs["K"] - frame.K).max()),
-        "points_xyz": float(np.abs(points[:, :3] - frame.points[:, :3]).max()),
-        "reflectance": float(np.abs(points[:, 3] - frame.points[:, 3]).max()),
-        "P": float(np.abs(theirs["P"] - frame.T_gt).max()),
-    }
-
-
 def check(peer: str, checkout: Path, export: Path, scratch: Path) -> dict:
     """Compare one peer's loader with i2pbench on every frame of the export."""
     view = scratch / f"{peer}-view"
     loader_view(export, view)
     dataset = Corri2PKitti("all", {"root": str(export)})
-    frames = {dataset.draw_index(f): f for f in dataset.frame_ids()}
-    theirs = run_loader(peer, checkout, view, sorted(frames), scratch / f"{peer}.npz")
-    protocol = CARDS[peer].protocol(0, dataset.name)
-    rows = []
-    for index, frame_id in sorted(frames.items()):
-        item = {k.split("/", 1)[1]: v for k, v in theirs.items() if k.split("/", 1)[0] == str(index)}
-        frame = protocol.apply(dataset.load(frame_id))
-        rows.append({"frame": frame_id, "index": index, "points": len(frame.points), **differences(item, frame)})
-    worst = {k: max(r.get(k, float("inf")) for r in rows) for k in TOLERANCES}
-    met = {k: worst[k] <= TOLERANCES[k] for k in TOLERANCES}
-    return {"frames": rows, "largest": worst, "met": met}
+    indices = sorted(dataset.draw_index(f) for f in dataset.frame_ids())
+    theirs = run_loader(LOADER, peer, checkout, view, indices, scratch / f"{peer}.npz")
+
+    def item(index: int) -> dict:  # the loader's arrays are named "<index>/<array>"
+        return {k.split("/", 1)[1]: v for k, v in theirs.items() if k.split("/", 1)[0] == str(index)}
+
+    return compare(dataset, CARDS[peer].protocol(0, dataset.name), item, TOLERANCES, "reflectance")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -108,12 +81,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.out:
         args.out.write_text(text + "\n")
     return 0 if all(all(p["met"].values()) for p in record["peers"].values()) else 1
-
-
-def head(checkout: Path) -> str:
-    """The checkout's commit (the cards cite rsy6318/CorrI2P@4f4a755 and WHU-USI3DV/CoFiI2P@ed90edf)."""
-    done = subprocess.run(["git", "-C", str(checkout), "rev-parse", "HEAD"], capture_output=True, text=True)
-    return done.stdout.strip() or "unknown (not a git checkout)"
 
 
 if __name__ == "__main__":

@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from corri2p_layout_check import head
+from layout_check import compare, head, run_loader
 
 from i2pbench.data.nuscenes_dataroot import build_dataroot
 from i2pbench.data.peer_nuscenes import INTENSITY_MAX, CoFiI2PNuScenes, CorrI2PNuScenes
@@ -47,41 +47,17 @@ DATASETS = {"cofii2p": CoFiI2PNuScenes, "corri2p": CorrI2PNuScenes}
 CARDS = {"cofii2p": cards.COFII2P, "corri2p": cards.CORRI2P}
 
 
-def run_loader(peer: str, checkout: Path, root: Path, indices: list[int], out: Path) -> dict[str, np.ndarray]:
-    command = [sys.executable, str(LOADER), peer, str(checkout), str(root), str(out), *map(str, indices)]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=900, cwd=LOADER.parent)
-    if done.returncode:
-        raise RuntimeError(f"{peer}'s loader failed:\n{done.stderr[-3000:]}")
-    return dict(np.load(out))
-
-
-def differences(theirs: dict[str, np.ndarray], frame) -> dict[str, float]:
-    """The largest difference per array between a loader's item and i2pbench's frame."""
-    points = theirs["points"]
-    if points.shape != frame.points.shape:
-        return {"points_shape": float("inf")}
-    return {
-        "image": float(np.abs(theirs["image"].astype(int) - frame.image.astype(int)).max()),
-        "K": float(np.abs(theirs["K"] - frame.K).max()),
-        "points_xyz": float(np.abs(points[:, :3] - frame.points[:, :3]).max()),
-        "intensity": float(np.abs(points[:, 3] / INTENSITY_MAX - frame.points[:, 3]).max()),
-        "P": float(np.abs(theirs["P"] - frame.T_gt).max()),
-    }
-
-
 def check(peer: str, checkout: Path, export: Path, scratch: Path) -> dict:
     """Compare one peer's loader with i2pbench on every frame of its layout's export."""
     dataset = DATASETS[peer]("test", {"root": str(export)})
-    frames = {dataset.draw_index(f): f for f in dataset.frame_ids()}
-    theirs = run_loader(peer, checkout, export, sorted(frames), scratch / f"{peer}.npz")
+    indices = sorted(dataset.draw_index(f) for f in dataset.frame_ids())
+    theirs = run_loader(LOADER, peer, checkout, export, indices, scratch / f"{peer}.npz")
+
+    def item(index: int) -> dict:  # the loader's arrays are named "<array>_<index>"
+        return {key: theirs[f"{key}_{index}"] for key in ("image", "K", "points", "P")}
+
     protocol = CARDS[peer].protocol(0, dataset.name)
-    rows = []
-    for index, frame_id in sorted(frames.items()):
-        item = {key: theirs[f"{key}_{index}"] for key in ("image", "K", "points", "P")}
-        frame = protocol.apply(dataset.load(frame_id))
-        rows.append({"frame": frame_id, "index": index, "points": len(frame.points), **differences(item, frame)})
-    worst = {k: max(r.get(k, float("inf")) for r in rows) for k in TOLERANCES}
-    return {"frames": rows, "largest": worst, "met": {k: worst[k] <= TOLERANCES[k] for k in TOLERANCES}}
+    return compare(dataset, protocol, item, TOLERANCES, "intensity", INTENSITY_MAX)
 
 
 def export_both(records: Path, scratch: Path) -> dict[str, dict]:

@@ -38,6 +38,24 @@ def needs_sample(*parts: str) -> pytest.MarkDecorator:
     return pytest.mark.skipif(reason is not None, reason=reason or "")
 
 
+# the authors' checkouts the peer tests run (outside the repo; docs/methods.md, "Against the authors' code")
+CHECKOUTS = {
+    "corri2p": ("I2PBENCH_CORRI2P_CHECKOUT", "rsy6318/CorrI2P"),
+    "cofii2p": ("I2PBENCH_COFII2P_CHECKOUT", "WHU-USI3DV/CoFiI2P"),
+    "deepi2p": ("I2PBENCH_DEEPI2P_CHECKOUT", "lijx10/DeepI2P"),
+    "vp2p-match": ("I2PBENCH_VP2P_CHECKOUT", "junshengzhou/VP2P-Match"),
+}
+
+
+def peer_checkout(peer: str) -> Path:
+    """the authors' checkout of `peer` its variable names, or skip the calling test naming the variable."""
+    variable, repository = CHECKOUTS[peer]
+    checkout = os.environ.get(variable, "")
+    if not checkout:
+        pytest.skip(f"{variable} is not set: the path of a {repository} checkout")
+    return Path(checkout)
+
+
 def missing_nuscenes(*parts: str) -> str | None:
     """Why a test of the nuScenes sample (nuscenes_records/parts) cannot run: the records, or the devkit that reads
     them (installed by scripts/install.sh, not by the dev extra), are missing; or None."""

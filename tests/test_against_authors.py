@@ -7,7 +7,6 @@ them (VP2P-Match's only where this interpreter has torchsparse, which its author
 
 import importlib.util
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -15,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import sample
+from conftest import peer_checkout, sample
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "against_authors.py"
 sys.path.insert(0, str(SCRIPT.parent))
@@ -114,19 +113,17 @@ def test_vp2p_match_without_torchsparse_is_refused_by_name(tmp_path, monkeypatch
         against_authors.METHODS["vp2p-match"](tmp_path, args)
 
 
-CHECKOUTS = {
-    "corri2p": ("I2PBENCH_CORRI2P_CHECKOUT", 2048, ["image", "points", "exchange"]),
-    "deepi2p": ("I2PBENCH_DEEPI2P_CHECKOUT", 1024, ["image", "points", "exchange"]),
-    "vp2p-match": ("I2PBENCH_VP2P_CHECKOUT", 1024, ["image", "points", "voxels", "fusion"]),
+TINY_RUNS = {  # points drawn, stages timed
+    "corri2p": (2048, ["image", "points", "exchange"]),
+    "deepi2p": (1024, ["image", "points", "exchange"]),
+    "vp2p-match": (1024, ["image", "points", "voxels", "fusion"]),
 }
 
 
-@pytest.mark.parametrize("method", sorted(CHECKOUTS))
+@pytest.mark.parametrize("method", sorted(TINY_RUNS))
 def test_a_tiny_run_checks_both_sides_against_the_reference_set_then_times_them(method, tmp_path):
-    variable, points, stages = CHECKOUTS[method]
-    checkout = os.environ.get(variable, "")
-    if not checkout:
-        pytest.skip(f"{variable} is not set: the path of the authors' {method} checkout")
+    points, stages = TINY_RUNS[method]
+    checkout = str(peer_checkout(method))
     if method == "vp2p-match" and importlib.util.find_spec("torchsparse") is None:
         pytest.skip(f"torchsparse is not importable in {sys.executable}: the authors' VP2P-Match code needs it")
     sample("kitti_odometry")  # the timed frame is the reference set's, prepared again at --points

@@ -4,18 +4,15 @@ checkout, named by an environment variable; without one the test skips naming it
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
-from conftest import SAMPLE_DATA, sample
+from conftest import SAMPLE_DATA, peer_checkout, sample
 from corri2p_layout_check import TOLERANCES, check
 
 from i2pbench.data.corri2p_export import export_kitti
 
 KITTI = SAMPLE_DATA / "kitti_odometry"
-CHECKOUTS = {"corri2p": "I2PBENCH_CORRI2P_CHECKOUT", "cofii2p": "I2PBENCH_COFII2P_CHECKOUT"}
-REPOS = {"corri2p": "rsy6318/CorrI2P", "cofii2p": "WHU-USI3DV/CoFiI2P"}
 
 
 @pytest.fixture(scope="module")
@@ -29,10 +26,7 @@ def export(tmp_path_factory) -> Path:
 @pytest.fixture(params=["corri2p", "cofii2p"])
 def peer(request) -> tuple[str, Path]:
     """(peer, its checkout), before any export is made."""
-    checkout = os.environ.get(CHECKOUTS[request.param], "")
-    if not checkout:
-        pytest.skip(f"{CHECKOUTS[request.param]} is not set: the path of a {REPOS[request.param]} checkout")
-    return request.param, Path(checkout)
+    return request.param, peer_checkout(request.param)
 
 
 def test_the_authors_loader_returns_what_i2pbench_hands_the_stages(peer, export, tmp_path):

@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 import torch
-from i2pbench_edgeregnet.attention import normalize_pixels
 
 from i2pbench.geometry import make_transform, rot_z
 from i2pbench.layers.pointnet2 import (
@@ -16,6 +15,7 @@ from i2pbench.layers.pointnet2 import (
     three_nn,
     three_nn_torch,
 )
+from i2pbench.layers.positions import centred_pixels
 from i2pbench.layers.sampling import sample_descriptors
 
 
@@ -121,7 +121,8 @@ def test_normalisations():
     torch.testing.assert_close(normalize_points(cloud, cloud), torch.tensor([[-1.0, 0, 0], [1.0, 0, 0], [0.0, 0, 0]]))
     uv = torch.tensor([[0.0, 0.0], [100.0, 25.0], [200.0, 50.0]])
     expected = torch.tensor([[-1.0, -0.25], [0.0, 0.0], [1.0, 0.25]])
-    torch.testing.assert_close(normalize_pixels(uv, (200, 50)), expected)
+    torch.testing.assert_close(centred_pixels(uv, (200, 50), 0.5), expected)
+    torch.testing.assert_close(centred_pixels(uv, (200, 50), 0.7), expected * 0.5 / 0.7)  # SuperGlue's span
 
 
 def test_canonical_frame_by_hand():

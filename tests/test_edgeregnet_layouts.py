@@ -23,7 +23,7 @@ def shipped_state(kind: str) -> dict[str, torch.Tensor]:
 
 
 def test_the_image_cnn_runs_channels_last_and_gives_the_plain_layouts_descriptors(shared_data):
-    encoder = SuperPointEncoder(configs.SMALL["encoder2d"]).eval()
+    encoder = SuperPointEncoder(configs.CPU["encoder2d"]).eval()
     encoder.load_state_dict(shipped_state("encoder2d"))  # saved from plain (NCHW) weights: loads into NHWC ones
     assert all(m.weight.is_contiguous(memory_format=torch.channels_last) for m in encoder.backbone[::5])
     plain = copy.deepcopy(encoder).to(memory_format=torch.contiguous_format)
@@ -40,7 +40,7 @@ def test_the_image_cnn_runs_channels_last_and_gives_the_plain_layouts_descriptor
 
 @pytest.mark.parametrize("layer", ["sa1", "sa2"])
 def test_shared_mlps_as_matrix_products_equal_the_1x1_convolutions_forward_and_backward(layer):
-    encoder = PointNet2Encoder(configs.SMALL["encoder3d"])
+    encoder = PointNet2Encoder(configs.CPU["encoder3d"])
     encoder.load_state_dict(shipped_state("encoder3d"))
     mlp = getattr(encoder, layer).mlp
     assert isinstance(mlp, SharedMLP)

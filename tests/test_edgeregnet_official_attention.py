@@ -7,7 +7,7 @@ import copy
 
 import pytest
 import torch
-from i2pbench_edgeregnet.official_attention import AttentionalPropagation, mlp, run_mlp
+from i2pbench_edgeregnet.official.attention import AttentionalPropagation, batchnorm_mlp, run_mlp
 
 from i2pbench.layers.attention import key_mask
 
@@ -78,7 +78,7 @@ def channels_first(head: torch.nn.Sequential, x: torch.Tensor) -> torch.Tensor:
 
 def test_official_mlp_folded_norm_equals_the_norm():
     torch.manual_seed(1)
-    head = mlp((DIM, 2 * DIM, 3 * DIM, DIM)).eval()
+    head = batchnorm_mlp((DIM, 2 * DIM, 3 * DIM, DIM)).eval()
     for norm in (m for m in head.modules() if isinstance(m, torch.nn.BatchNorm1d)):
         norm.running_mean.uniform_(-1, 1)
         norm.running_var.uniform_(0.2, 2)

@@ -41,7 +41,7 @@ def test_an_exchanger_refuses_an_encoder_of_another_size():
     assert "exchanger 'attention' has descriptor_dim 64" in reason and "encoder2d 'superpoint-cnn'" in reason
 
 
-@pytest.mark.parametrize("variant", ["FULL", "SMALL"])
+@pytest.mark.parametrize("variant", ["PAPER", "CPU"])
 def test_shipped_configs_build_and_agree(variant):
     conf = getattr(configs, variant)
     classes = {"encoder2d": SuperPointEncoder, "encoder3d": PointNet2Encoder, "exchanger": AttentionExchanger}

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import torch
 from conftest import SAMPLE_DATA
-from i2pbench_edgeregnet import official_import
 from i2pbench_edgeregnet.method import official_stages
-from i2pbench_edgeregnet.official_matching import official_loss, project
-from i2pbench_edgeregnet.official_pointnet2 import ball_query, normalize
-from i2pbench_edgeregnet.reference import reference_forward, reference_frame
+from i2pbench_edgeregnet.official import importer
+from i2pbench_edgeregnet.official.matching import official_loss, project
+from i2pbench_edgeregnet.official.pointnet2 import ball_query, normalize
+from i2pbench_edgeregnet.official.reference import reference_forward, reference_frame
 
 from i2pbench.cli import main
 from i2pbench.layers.pointnet2 import ball_query as fast_ball_query
@@ -97,7 +97,7 @@ def test_reference_import_records_where_the_weights_come_from(imported, official
 
 
 def test_reference_import_round_trips_the_state_dict(imported, official_file):
-    state, unknown = official_import.split(torch.load(official_file, weights_only=True))
+    state, unknown = importer.split(torch.load(official_file, weights_only=True))
     assert not unknown
     for kind, tensors in state.items():
         assert tensors.keys() == imported.state[kind].keys()
@@ -111,7 +111,7 @@ def test_reference_import_refuses_a_file_that_does_not_fit(official_file, tmp_pa
     state["extra.weight"] = torch.zeros(1)
     torch.save(state, tmp_path / "bad.t7")
     with pytest.raises(Exception, match="extra.weight") as err:
-        official_import.import_official(tmp_path / "bad.t7")
+        importer.import_official(tmp_path / "bad.t7")
     assert "missing key exchanger.kenc3d.12.bias" in str(err.value)
     assert "layers.0.mlp.0.weight: shape (512, 256), expected (512, 512)" in str(err.value)
 
@@ -166,8 +166,8 @@ def test_reference_losses(ours, reference):
 
 def test_reference_wrong_head_layout_fails(official_file, reference, monkeypatch):
     """imported without regrouping the heads, the attention no longer computes the authors' GNN."""
-    monkeypatch.setattr(official_import, "head_order", lambda dim, heads=4: torch.arange(dim))
-    state, _ = official_import.split(torch.load(official_file, weights_only=True))
+    monkeypatch.setattr(importer, "head_order", lambda dim, heads=4: torch.arange(dim))
+    state, _ = importer.split(torch.load(official_file, weights_only=True))
     wrong = reference_forward(stages_from(state), reference[0])
     assert relative_error(wrong["gnn2d"], reference[1]["gnn2d"]) > 100 * RELATIVE
     assert relative_error(wrong["enc2d"], reference[1]["enc2d"]) <= RELATIVE  # before the GNN: unaffected
@@ -175,7 +175,7 @@ def test_reference_wrong_head_layout_fails(official_file, reference, monkeypatch
 
 def test_reference_untied_layer_fails(official_file, reference):
     """a GNN whose 2D side has weights of its own (here: the next layer's) is not the authors' tied GNN."""
-    state, _ = official_import.split(torch.load(official_file, weights_only=True))
+    state, _ = importer.split(torch.load(official_file, weights_only=True))
     stages = stages_from(state)
     layers = list(stages["exchanger"].layers)
 

@@ -4,7 +4,7 @@ EdgeRegNet's 3D descriptors do not change when they replace it (speed: benchmark
 import numpy as np
 import pytest
 import torch
-from i2pbench_edgeregnet.configs import SMALL
+from i2pbench_edgeregnet.configs import CPU
 from i2pbench_edgeregnet.pointnet2 import PointNet2Encoder
 
 from i2pbench.data.kitti import read_points
@@ -84,7 +84,7 @@ def test_three_nn_gives_the_reference_neighbours_up_to_ties(real_cloud):
 
 def test_descriptors_are_unchanged_by_the_compiled_grouping(real_cloud, monkeypatch):
     torch.manual_seed(0)
-    encoder = PointNet2Encoder(SMALL["encoder3d"]).eval()
+    encoder = PointNet2Encoder(CPU["encoder3d"]).eval()
     edges = real_cloud[:, :1500]
     compiled = group(real_cloud, edges, encoder.conf)
     monkeypatch.setattr(pointnet2, "ball_query", pointnet2.ball_query_torch)

@@ -65,6 +65,7 @@ LAYER_CODE = {
     "peer_inputs": (1, "f237d6447cc1"),  # a protocol card's already-prepared frame is refused (was: zero cells)
     "pointnet2": (1, "ee6c35457d80"),  # the torch FPS rounds as the compiled one (issue 39); seeded_cloud: same
     "point_voxel": (0, "6454dd9cb5d5"),
+    "positions": (0, "bba0b2ef6d56"),  # EdgeRegNet's two pixel normalisations, moved from its exchangers: same outputs
     "resnet": (0, "38d6e5b5dcfe"),
     "sampling": (0, "dd084e30084c"),
     "sparse": (0, "862328a80b46"),

@@ -2,6 +2,7 @@
 check with no other glue; `plugins` lists it with module paths; an alias is the component it names."""
 
 import argparse
+import dataclasses
 import json
 import re
 import types
@@ -160,6 +161,33 @@ def test_edgeregnets_matcher_answers_to_its_honest_name_with_the_committed_label
     assert honest.display.endswith("> attention > lightglue > epnp-ransac (cpu-size)")
 
 
+def _renamed(*aliases: str) -> Method:
+    """the toy method with its tiny preset renamed, the old name kept as an alias."""
+    renamed = MethodPreset("toy", toy_method.PRESETS[0].rows, "the toy method at its tiny size", aliases=aliases)
+    return dataclasses.replace(toy_method.method(), presets=(renamed, *toy_method.PRESETS[1:]))
+
+
+def test_a_renamed_preset_answers_to_its_former_name_everywhere_a_preset_is_named(monkeypatch, capsys):
+    components = types.ModuleType("components")  # toy_plugin's stages without its presets (it has a "default")
+    for hook in [h for h in vars(toy_plugin) if h.startswith("register_") and h != "register_presets"]:
+        setattr(components, hook, getattr(toy_plugin, hook))
+    including = types.ModuleType("including")
+    including.register_presets = hookimpl(lambda register: register("both", ["toy-tiny", "toy-sizes"]))
+    renamed = _method_plugin("renamed", _renamed("toy-tiny", "default"))
+    registry = build_registry((components, renamed, including), strict=True)
+    assert registry.preset("toy-tiny") is registry.preset("toy") and "toy-tiny" not in registry.presets
+    assert [r.display for r in _rows(registry, "toy-tiny")] == [f"{REFERENCE_ROW} (tiny)"]
+    assert _rows(registry, None) == _rows(registry, "toy")  # "default" as an alias is still the run's default
+    assert len(_rows(registry, "both")) == 3  # an included preset named by its alias
+    assert "    presets    toy (alias: toy-tiny, default), toy-sizes\n" in _listing(registry, monkeypatch, capsys)
+
+
+def test_a_preset_alias_taken_by_another_plugin_is_refused():
+    error = "preset alias 'default' of 'toy' (plugin 'renamed') is a name of plugin 'toy_plugin'"
+    with pytest.raises(PluginError, match=re.escape(error)):
+        build_registry((toy_plugin, _method_plugin("renamed", _renamed("default"))), strict=True)
+
+
 @pytest.mark.parametrize(
     "aliases, error",
     [
@@ -227,8 +255,10 @@ def test_edgeregnet_is_one_method_from_its_entry_point(monkeypatch):
     sizes = [s.name for s in method.sizes]
     assert sizes == ["paper", "cpu-size", "official"] and registry.methods.plugin("edgeregnet") == "edgeregnet"
     owned = {name for name, preset in registry.presets.items() if preset.method == "edgeregnet"}
-    assert owned == {"default", "edgeregnet-full", "edgeregnet-official", "edge-ablation", "exchange-ablation",
+    assert owned == {"edgeregnet", "edgeregnet-paper", "edgeregnet-official", "edge-ablation", "exchange-ablation",
                      "baselines"}  # fmt: skip
+    for old, new in (("default", "edgeregnet"), ("edgeregnet-full", "edgeregnet-paper")):  # the former names
+        assert registry.presets.canonical(old) == new and registry.preset_rows(old) == registry.preset_rows(new)
     official = registry.preset_rows("edgeregnet-official")[0]
     assert official["encoder2d"] == "superpoint-official" and official["matcher"] == "match-assignment-official"
     assert official["variant"] == "official" and official["confs"]["extractor2d"] == {"max_keypoints": 3000}

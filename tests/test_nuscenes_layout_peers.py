@@ -5,23 +5,13 @@ environment variable; without one the test skips naming it."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
-from conftest import SAMPLE_DATA, sample
+from conftest import SAMPLE_DATA, peer_checkout, sample
 from nuscenes_layout_check import TOLERANCES, check, check_build, export_both
 
 RECORDS = SAMPLE_DATA / "nuscenes_real"
-CHECKOUTS = {"corri2p": "I2PBENCH_CORRI2P_CHECKOUT", "cofii2p": "I2PBENCH_COFII2P_CHECKOUT"}
-REPOS = {"corri2p": "rsy6318/CorrI2P", "cofii2p": "WHU-USI3DV/CoFiI2P"}
-
-
-def checkout_of(peer: str) -> Path:
-    checkout = os.environ.get(CHECKOUTS[peer], "")
-    if not checkout:
-        pytest.skip(f"{CHECKOUTS[peer]} is not set: the path of a {REPOS[peer]} checkout")
-    return Path(checkout)
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +22,7 @@ def scratch(tmp_path_factory) -> Path:
 
 @pytest.mark.parametrize("peer", ["corri2p", "cofii2p"])
 def test_the_authors_loader_returns_what_i2pbench_hands_the_stages(peer, scratch):
-    checkout = checkout_of(peer)
+    checkout = peer_checkout(peer)
     if not (scratch / peer).is_dir():
         export_both(RECORDS, scratch)
     result = check(peer, checkout, scratch / peer, scratch)
@@ -44,6 +34,6 @@ def test_the_authors_loader_returns_what_i2pbench_hands_the_stages(peer, scratch
 
 
 def test_cofii2ps_build_scripts_write_the_exports_files(scratch):
-    result = check_build(checkout_of("cofii2p"), RECORDS, scratch)
+    result = check_build(peer_checkout("cofii2p"), RECORDS, scratch)
     assert result["frames"] == 5 and len(result["files"]) == 20
     assert all(row["diff"] == 0.0 for row in result["files"]), [r for r in result["files"] if r["diff"]]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from i2pbench_vp2p_match.official_import import RELEASE, load_official
+from i2pbench_vp2p_match.official.importer import RELEASE, load_official
 
 from i2pbench.api import WeightsError
 from i2pbench.testing.recipe import recipe_state

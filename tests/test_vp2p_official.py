@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from i2pbench_vp2p_match.official_import import RELEASE
-from i2pbench_vp2p_match.prepare import grid_pixels
-from i2pbench_vp2p_match.stages import CROP, OfficialVP2PMatch, confident_pairs
+from i2pbench_vp2p_match.official.importer import RELEASE
+from i2pbench_vp2p_match.official.prepare import grid_pixels
+from i2pbench_vp2p_match.official.stages import CROP, OfficialVP2PMatch, confident_pairs
 
 from i2pbench.boards import leaderboard
 from i2pbench.cli import main

@@ -14,13 +14,13 @@ import pytest
 from i2pbench_vp2p_match.official.image import ImageResNet
 from i2pbench_vp2p_match.official.network import VP2PMatchNet
 from i2pbench_vp2p_match.official.points import PointsEncoder
-from i2pbench_vp2p_match.official.spvcnn import SPVCNN
-from i2pbench_vp2p_match.reference import (
+from i2pbench_vp2p_match.official.reference import (
     image_branch_forward,
     network_forward,
     point_branch_forward,
     voxel_branch_forward,
 )
+from i2pbench_vp2p_match.official.spvcnn import SPVCNN
 
 from i2pbench.testing.recipe import folder_state
 

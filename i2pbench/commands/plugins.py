@@ -79,7 +79,9 @@ def _method_lines(method: dict[str, Any]) -> list[str]:
         label = size["variant"]
         note = "" if label == name else f"; rows labelled ({label})" if label else "; rows unlabelled"
         lines.append(f"    {'size':10s} {name:{width}s}  {size['description']}{note}".rstrip())
-    for what in ("presets", "weights"):
-        if method[what]:
-            lines.append(f"    {what:10s} {', '.join(method[what])}")
+    aliases = method["preset_aliases"]
+    presets = [f"{p} (alias: {', '.join(aliases[p])})" if p in aliases else p for p in method["presets"]]
+    for what, names in (("presets", presets), ("weights", method["weights"])):
+        if names:
+            lines.append(f"    {what:10s} {', '.join(names)}")
     return lines

@@ -104,6 +104,7 @@ def add_method(registry: Registry, plugin: str, method: Any) -> None:
     registry.methods.add(method.name, method, plugin)
     for preset in method.presets:
         add_preset(registry, plugin, preset.name, method.combinations(preset), preset.description, method.name)
+        registry.presets.add_aliases(preset.name, preset.aliases, plugin)
     for path in method.weights:
         registry.weights.add(str(path), str(path), plugin)
 

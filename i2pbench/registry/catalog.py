@@ -139,6 +139,7 @@ class Registry:
                 row = self.row(entry)
                 rows += [row] if row is not None else []
                 continue
+            entry = self.presets.canonical(entry)
             if entry in (*_within, preset.name):
                 raise PluginError(f"preset {preset.name!r} (plugin {preset.plugin!r}) includes itself via {entry!r}")
             if entry not in self.presets:

@@ -65,11 +65,13 @@ class Row:
 
 @dataclass(frozen=True)
 class MethodPreset:
-    """A named list of rows: `Row`s of the method, or plain combinations (e.g. a non-learned reference row)."""
+    """A named list of rows: `Row`s of the method, or plain combinations (e.g. a non-learned reference row).
+    `aliases`: other names `--preset` takes for it (a former name users may have typed)."""
 
     name: str
     rows: tuple[Row | Mapping[str, Any], ...]
     description: str = ""
+    aliases: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -157,6 +159,7 @@ class Method:
             "stages": dict(self.stages),
             "sizes": {s.name: _describe_size(s) for s in self.sizes},
             "presets": [p.name for p in self.presets],
+            "preset_aliases": {p.name: list(p.aliases) for p in self.presets if p.aliases},
             "weights": [Path(w).name for w in self.weights],
             "importers": sorted(self.importers),
         }

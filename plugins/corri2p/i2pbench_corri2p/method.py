@@ -1,4 +1,5 @@
-"""CorrI2P as one declared method: its stages, the paper's size and a CPU size, its presets, its shipped weights.
+"""CorrI2P as one declared method: its stages, its three variants (paper, cpu-size and official, named as every
+method's: docs/methods.md, "A method's variants"), its presets, its shipped weights.
 
 The paper's size (configs.PAPER: the components' defaults) takes the dense stride-8 grid of a full-size image and
 40,960 random points, as the paper matches among all its pixels and points; the CPU size takes a stride-16 grid

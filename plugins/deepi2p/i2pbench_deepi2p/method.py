@@ -1,4 +1,5 @@
-"""DeepI2P as one declared method: its stages, the paper's size and a CPU size, its presets, its shipped weights.
+"""DeepI2P as one declared method: its stages, its three variants (paper, cpu-size and official, named as every
+method's: docs/methods.md, "A method's variants"), its presets, its shipped weights.
 
 Both sizes classify points into the same 64 px cells (the cell-centres extractor's default); the 3D keypoint cap is
 a pin (it serves the learned stages whichever extractor a row uses). The presets run the two back-ends of the paper

@@ -18,20 +18,15 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from i2pbench.api import BatchedStage, Component, Device, Exchanger, Frame, Keypoints2D, Keypoints3D
+from i2pbench.api import BatchedStage, Component, Device, Exchanger, Frame, Keypoints2D, Keypoints3D, width_mismatch
 from i2pbench.layers.attention import key_mask
 from i2pbench.layers.pointnet2 import normalize_points
+from i2pbench.layers.positions import centred_pixels
 
-from .matching import descriptor_dim_mismatch
-
-
-def normalize_pixels(uv: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
-    """pixels [M x 2] -> [M x 2], the image centre at 0 and the longer side spanning [-1, 1]."""
-    w, h = size
-    return (uv - uv.new_tensor([w / 2, h / 2])) / (max(w, h) / 2)
+PIXEL_SPAN = 0.5  # the image's longer side spans [-1, 1]
 
 
-def mlp(widths: tuple[int, ...]) -> nn.Sequential:
+def relu_mlp(widths: tuple[int, ...]) -> nn.Sequential:
     """Linear + ReLU layers, the last one linear with a zero bias."""
     layers: list[nn.Module] = []
     for cin, cout in zip(widths[:-1], widths[1:], strict=True):
@@ -91,14 +86,14 @@ class AttentionExchanger(BatchedStage, Exchanger):
     def __init__(self, conf: dict[str, Any] | None = None) -> None:
         super().__init__(conf)
         dim, hidden = self.conf["descriptor_dim"], tuple(self.conf["pe_mlp"])
-        self.pe2d, self.pe3d = mlp((2, *hidden, dim)), mlp((3, *hidden, dim))
+        self.pe2d, self.pe3d = relu_mlp((2, *hidden, dim)), relu_mlp((3, *hidden, dim))
         share = self.conf["share_weights"]
         self.blocks = nn.ModuleList(
             ExchangeBlock(dim, self.conf["num_heads"], share) for _ in range(self.conf["num_blocks"])
         )
 
     def check_compatible(self, upstream: Mapping[str, Component]) -> str | None:
-        return descriptor_dim_mismatch(self, upstream)
+        return width_mismatch(self, upstream, ("descriptor_dim",))
 
     def compile_targets(self) -> list[nn.Module]:
         """the attention blocks: dense matmuls, SDPA and MLPs on [B x M x D], shapes fixed by the keypoint caps."""
@@ -112,7 +107,7 @@ class AttentionExchanger(BatchedStage, Exchanger):
         xyz = torch.from_numpy(np.asarray(kp3d.xyz, np.float32)).to(device)
         if len(xyz):
             xyz = normalize_points(xyz, xyz, self.conf["canonical_yaw"])
-        return {"uv": normalize_pixels(uv, frame.image_size), "xyz": xyz}
+        return {"uv": centred_pixels(uv, frame.image_size, PIXEL_SPAN), "xyz": xyz}
 
     def forward(
         self,

@@ -1,11 +1,12 @@
-"""Stage configs of EdgeRegNet's learned stages: the paper's size, a smaller one that trains on a CPU, and the
-components of the authors' own network (the `official` size).
+"""Stage configs of EdgeRegNet's three variants (docs/methods.md, "A method's variants"): `PAPER`, the paper's
+widths (the components' defaults); `CPU`, narrower ones that train on a CPU (the shipped weights'); and
+`OFFICIAL_STAGES`, the components of the authors' own network (official/), which differ in kind, not in width.
 
-The small one also turns on the yaw-canonical frame for 3D inputs (layers/canonical.py), our addition: without it the
-encoders must learn invariance to the protocol's random yaw from augmentation alone, which a CPU cannot afford.
+The CPU variant also turns on the yaw-canonical frame for 3D inputs (layers/canonical.py), our addition: without it
+the encoders must learn invariance to the protocol's random yaw from augmentation alone, which a CPU cannot afford.
 
-Keys are stage kinds, values config overrides for that stage's component (`{}`: its defaults, the paper's sizes).
-The small variant also expects the extractors capped at `SMALL_KEYPOINTS` edge pixels and edge points.
+Keys are stage kinds, values config overrides for that stage's component (`{}`: its defaults, the paper's widths).
+The CPU variant also expects the extractors capped at `CPU_KEYPOINTS` edge pixels and edge points.
 """
 
 from __future__ import annotations
@@ -13,12 +14,12 @@ from __future__ import annotations
 from typing import Any
 
 COMPONENTS = {"encoder2d": "superpoint-cnn", "encoder3d": "pointnet2", "exchanger": "attention", "matcher": "lightglue"}
-FULL_KEYPOINTS = 3000
-SMALL_KEYPOINTS = 2048  # attention cost grows with the square of this; 2048 keeps a CPU training step near 2 s and
+PAPER_KEYPOINTS = 3000
+CPU_KEYPOINTS = 2048  # attention cost grows with the square of this; 2048 keeps a CPU training step near 2 s and
 # gives ~4x the ground-truth pairs of 1024 (about 50 per synthetic frame: only ~12% of a scan's edge points are in view)
 
-# the authors' network (official_*.py): other components, not other widths; 3000 edge pixels and points (test.py)
-OFFICIAL_COMPONENTS = {
+# the authors' network (official/): other components, not other widths; 3000 edge pixels and points (test.py)
+OFFICIAL_STAGES = {
     "encoder2d": "superpoint-official",
     "encoder3d": "pointnet2-official",
     "exchanger": "attention-official",
@@ -26,9 +27,9 @@ OFFICIAL_COMPONENTS = {
 }
 OFFICIAL_KEYPOINTS = 3000
 
-FULL: dict[str, dict[str, Any]] = {kind: {} for kind in COMPONENTS}
+PAPER: dict[str, dict[str, Any]] = {kind: {} for kind in COMPONENTS}
 
-SMALL: dict[str, dict[str, Any]] = {
+CPU: dict[str, dict[str, Any]] = {
     "encoder2d": {"descriptor_dim": 128, "channels": (32, 32, 64, 64), "head_channels": 128},
     "encoder3d": {
         "descriptor_dim": 128,

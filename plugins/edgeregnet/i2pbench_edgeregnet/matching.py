@@ -28,6 +28,7 @@ from i2pbench.api import (
     Matches,
     StageError,
     ground_truth_matches,
+    width_mismatch,
 )
 
 from .loss import edgeregnet_loss, log_assignment
@@ -63,17 +64,6 @@ def row_argmax(values: torch.Tensor) -> torch.Tensor:
     return values.argmax(1)
 
 
-def descriptor_dim_mismatch(component: Component, upstream: Mapping[str, Component]) -> str | None:
-    """why component's descriptor_dim disagrees with an upstream encoder's or exchanger's, or None."""
-    dim = component.conf["descriptor_dim"]
-    for kind in ("encoder2d", "encoder3d", "exchanger"):
-        other = upstream.get(kind)
-        theirs = getattr(other, "conf", {}).get("descriptor_dim") if other is not None else None
-        if theirs is not None and theirs != dim:
-            return f"{component.label} has descriptor_dim {dim} but {other.label} has descriptor_dim {theirs}"
-    return None
-
-
 def to_device(array: np.ndarray, device: torch.device) -> torch.Tensor:
     return torch.from_numpy(np.asarray(array)).to(device)
 
@@ -101,7 +91,7 @@ class OptimalMatcher(BatchedStage, Matcher):
         self.fov = nn.Linear(dim, 1)  # the paper's 1D convolution over points, kernel 1
 
     def check_compatible(self, upstream: Mapping[str, Component]) -> str | None:
-        return descriptor_dim_mismatch(self, upstream)
+        return width_mismatch(self, upstream, ("descriptor_dim",))
 
     def forward(
         self, d2: torch.Tensor, d3: torch.Tensor, mask2d: torch.Tensor | None = None, mask3d: torch.Tensor | None = None

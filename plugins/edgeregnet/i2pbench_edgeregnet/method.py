@@ -1,8 +1,13 @@
-"""EdgeRegNet as one declared method: its stages, its two sizes, the paper's ablations as presets, its weights.
+"""EdgeRegNet as one declared method: its stages, its three variants, the paper's ablations as presets, its weights.
 
-The shipped checkpoints were trained on this project's CPU, so they are the CPU size (configs.SMALL), which the
-`default` preset runs: its rows pin exactly the stage configs the weights were trained with, which is what lets
-`--weights auto` find them. The paper size has no shipped weights and runs `untrained` unless given a checkpoint.
+The variants follow the scheme every method shares (docs/methods.md, "A method's variants"): `paper` (the paper's
+widths, preset `edgeregnet-paper`), `cpu-size` (widths a CPU trains, preset `edgeregnet`) and `official` (the
+authors' own network, preset `edgeregnet-official`, whose stages are other components, not other widths).
+
+The shipped checkpoints were trained on this project's CPU, so they are the cpu-size variant (configs.CPU), which
+the `edgeregnet` preset runs (the project's `default` too): its rows pin exactly the stage configs the weights were
+trained with, which is what lets `--weights auto` find them. The paper variant has no shipped weights and runs
+`untrained` unless given a checkpoint.
 
 `--preset edge-ablation` reproduces Table III in one command: every row keeps the learned stages at the CPU size and
 changes only the studied stage. Each row needs weights trained with its own extractors (a checkpoint belongs to the
@@ -17,7 +22,7 @@ from typing import TYPE_CHECKING
 
 from i2pbench.api import Method, MethodPreset, Row, Size
 
-from .configs import COMPONENTS, FULL, OFFICIAL_COMPONENTS, OFFICIAL_KEYPOINTS, SMALL, SMALL_KEYPOINTS
+from .configs import COMPONENTS, CPU, CPU_KEYPOINTS, OFFICIAL_KEYPOINTS, OFFICIAL_STAGES, PAPER
 
 if TYPE_CHECKING:
     from i2pbench.api import LearnedComponent
@@ -26,19 +31,19 @@ WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 EDGES = {"extractor2d": "lsd", "extractor3d": "depth+reflectance"}
 SOLVER = {"solver": "epnp-ransac"}
 
-PAPER = Size("paper", FULL, variant="", description="d=256, 6 blocks, 3000 + 3000 keypoints (the paper's)")
+PAPER_SIZE = Size("paper", PAPER, variant="", description="d=256, 6 blocks, 3000 + 3000 keypoints (the paper's)")
 # the extractors' cap serves the learned stages whichever extractor an ablation row uses; the paper's 3000 is the
 # extractors' own default, so it is not pinned and classic rows built over a paper-size row stay plain
-CPU = Size(
+CPU_SIZE = Size(
     "cpu-size",
-    SMALL,
-    pins={kind: {"max_keypoints": SMALL_KEYPOINTS} for kind in EDGES},
-    description=f"d=128, 3 blocks, {SMALL_KEYPOINTS} + {SMALL_KEYPOINTS} keypoints, yaw-canonical 3D (shipped weights)",
+    CPU,
+    pins={kind: {"max_keypoints": CPU_KEYPOINTS} for kind in EDGES},
+    description=f"d=128, 3 blocks, {CPU_KEYPOINTS} + {CPU_KEYPOINTS} keypoints, yaw-canonical 3D (shipped weights)",
 )
 # the authors' network (docs/edgeregnet.md: paper text vs authors' code vs i2pbench); its weights are theirs, imported
 OFFICIAL = Size(
     "official",
-    stages=OFFICIAL_COMPONENTS,
+    stages=OFFICIAL_STAGES,
     pins={kind: {"max_keypoints": OFFICIAL_KEYPOINTS} for kind in EDGES},
     description="the authors' code exactly (ESRSchao/EdgeRegNet): tied SuperGlue attention, 9,789,922 values; "
     "weights: i2pbench weights import edgeregnet-official KITTI.t7",
@@ -57,14 +62,22 @@ EDGE_ROWS = (
 EXCHANGERS = ("none", "attention")
 
 # the non-learned reference: the paper's edges under ground-truth matches
-ORACLE = {**EDGES, "matcher": "oracle", **SOLVER, "confs": {k: {"max_keypoints": SMALL_KEYPOINTS} for k in EDGES}}
+ORACLE = {**EDGES, "matcher": "oracle", **SOLVER, "confs": {k: {"max_keypoints": CPU_KEYPOINTS} for k in EDGES}}
 
 PRESETS = (
+    # the former names stay aliases: `default` is also what `i2pbench run` runs with no stage options, and committed
+    # boards (paper-table-1) name the row by it
     MethodPreset(
-        "default", (Row("cpu-size"),), "EdgeRegNet (CPU-sized, shipped weights): lsd + depth+reflectance edges"
+        "edgeregnet",
+        (Row("cpu-size"),),
+        "EdgeRegNet (CPU-sized, shipped weights): lsd + depth+reflectance edges",
+        aliases=("default",),
     ),
     MethodPreset(
-        "edgeregnet-full", (Row("paper"),), "EdgeRegNet at the paper's size (d=256, 6 blocks, 3000 + 3000 keypoints)"
+        "edgeregnet-paper",
+        (Row("paper"),),
+        "EdgeRegNet at the paper's size (d=256, 6 blocks, 3000 + 3000 keypoints)",
+        aliases=("edgeregnet-full",),
     ),
     MethodPreset(
         "edgeregnet-official",
@@ -101,21 +114,21 @@ def edgeregnet() -> Method:
     return Method(
         "edgeregnet",
         {**EDGES, **COMPONENTS, **SOLVER},
-        (PAPER, CPU, OFFICIAL),
+        (PAPER_SIZE, CPU_SIZE, OFFICIAL),
         PRESETS,
         tuple(sorted(WEIGHTS_DIR.glob("*.pt"))),
         "edge pixels and points, CNN + PointNet++ encoders, attention exchange, optimal matching, EPnP",
-        importers={"edgeregnet-official": "i2pbench_edgeregnet.official_import:import_official"},
+        importers={"edgeregnet-official": "i2pbench_edgeregnet.official.importer:import_official"},
         title="EdgeRegNet",
     )
 
 
 def official_stages() -> dict[str, LearnedComponent]:
     """the official size's four learned stages at their defaults, built directly (no registry)."""
-    from .official_attention import OfficialAttention
-    from .official_matching import OfficialMatcher
-    from .official_pointnet2 import OfficialPointNet2
-    from .official_superpoint import OfficialSuperPoint
+    from .official.attention import OfficialAttention
+    from .official.matching import OfficialMatcher
+    from .official.pointnet2 import OfficialPointNet2
+    from .official.superpoint import OfficialSuperPoint
 
     classes = (OfficialSuperPoint, OfficialPointNet2, OfficialAttention, OfficialMatcher)
     return {kind: cls() for kind, cls in zip(COMPONENTS, classes, strict=True)}

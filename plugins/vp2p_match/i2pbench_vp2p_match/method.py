@@ -1,5 +1,5 @@
 """VP2P-Match as one declared method: the authors' network (official/: junshengzhou/VP2P-Match be76104, proven on
-tensors their code computed, tests/test_vp2p_reference.py) with their pixels, points and inference (stages.py), the
+tensors their code computed, tests/test_vp2p_reference.py) with their pixels, points and inference (official/), the
 `official` size. It runs untrained unless given weights from `i2pbench weights import vp2p-match-official FILE` (the
 authors' released KITTI checkpoint, user-supplied: it carries no licence, so it is never shipped).
 """
@@ -48,6 +48,6 @@ def vp2p_match() -> Method:
         (),
         "the authors' crop's stride-4 cells and voxel points, image + point + voxel branches fused, overlap scores, "
         "nearest-descriptor matching, EPnP",
-        importers={"vp2p-match-official": "i2pbench_vp2p_match.official_import:import_official"},
+        importers={"vp2p-match-official": "i2pbench_vp2p_match.official.importer:import_official"},
         title="VP2P-Match",
     )

@@ -14,17 +14,17 @@ from .method import vp2p_match
 
 @hookimpl
 def register_extractors_2d(register: Register) -> None:
-    register("i2pbench_vp2p_match.stages:OfficialGrid", name="vp2p-match-official-grid")
+    register("i2pbench_vp2p_match.official.stages:OfficialGrid", name="vp2p-match-official-grid")
 
 
 @hookimpl
 def register_extractors_3d(register: Register) -> None:
-    register("i2pbench_vp2p_match.stages:OfficialPoints", name="vp2p-match-official-points")
+    register("i2pbench_vp2p_match.official.stages:OfficialPoints", name="vp2p-match-official-points")
 
 
 @hookimpl
 def register_matchers(register: Register) -> None:
-    register("i2pbench_vp2p_match.stages:OfficialVP2PMatch", name="vp2p-match-official")
+    register("i2pbench_vp2p_match.official.stages:OfficialVP2PMatch", name="vp2p-match-official")
 
 
 @hookimpl

@@ -1,6 +1,6 @@
 """The authors' image side (imagenet.py): torchvision's ResNet-34 layout returning every stride's map, and the
 decoder's blocks (`ResidualConv`, `ImageUpSample`). The ImageNet classifier (`fc`) is left out: their forward never
-uses it (official_import.py drops its keys)."""
+uses it (importer.py drops its keys)."""
 
 from __future__ import annotations
 

@@ -72,7 +72,7 @@ def split(state: Mapping[str, torch.Tensor], heads: int = HEADS) -> tuple[dict[s
 
 def expected() -> dict[str, dict[str, torch.Tensor]]:
     """the official size's state dicts, by stage kind (what an import must fill exactly)."""
-    from .method import official_stages
+    from ..method import official_stages
 
     return {kind: module.state_dict() for kind, module in official_stages().items()}
 

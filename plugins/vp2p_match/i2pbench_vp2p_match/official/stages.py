@@ -47,7 +47,7 @@ from i2pbench.layers.peer_inputs import (
     voxel_cloud,
 )
 
-from .official.network import VP2PMatchNet
+from .network import VP2PMatchNet
 from .prepare import STRIDE, pixel_cells
 
 NUM_POINTS = 40960  # utils/options.py input_pt_num

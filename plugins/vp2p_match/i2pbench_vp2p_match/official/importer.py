@@ -18,7 +18,7 @@ import torch
 
 from i2pbench.api import ImportedWeights
 
-from .official.network import VP2PMatchNet
+from .network import VP2PMatchNet
 
 RELEASE = "authors' release (KITTI)"
 FORMAT = "VP2P-Match VP2PMatchNet state dict"

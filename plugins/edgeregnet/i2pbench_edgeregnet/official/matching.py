@@ -34,11 +34,11 @@ from i2pbench.api import (
     Matcher,
     Matches,
     StageError,
+    width_mismatch,
 )
 
-from .loss import PADDED
-from .matching import descriptor_dim_mismatch
-from .official_attention import ChannelNorm
+from ..loss import PADDED
+from .attention import ChannelNorm
 
 
 def head(widths: tuple[int, ...]) -> nn.Sequential:
@@ -119,7 +119,7 @@ class OfficialMatcher(BatchedStage, Matcher):
         self.final_proj, self.matchability = nn.Linear(dim, dim), nn.Linear(dim, 1)
 
     def check_compatible(self, upstream: Mapping[str, Component]) -> str | None:
-        return descriptor_dim_mismatch(self, upstream)
+        return width_mismatch(self, upstream, ("descriptor_dim",))
 
     def forward(
         self, d2: torch.Tensor, d3: torch.Tensor, mask2d: torch.Tensor | None = None, mask3d: torch.Tensor | None = None

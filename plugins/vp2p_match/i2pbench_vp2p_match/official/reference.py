@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .official.image import ImageResNet
-from .official.network import VP2PMatchNet
-from .official.points import PointsEncoder
-from .official.spvcnn import SPVCNN, voxel_coordinates
+from .image import ImageResNet
+from .network import VP2PMatchNet
+from .points import PointsEncoder
+from .spvcnn import SPVCNN, voxel_coordinates
 
 
 def voxel_branch_inputs(inputs: dict[str, np.ndarray]) -> tuple[torch.Tensor, torch.Tensor]:

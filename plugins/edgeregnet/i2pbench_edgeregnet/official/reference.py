@@ -12,7 +12,7 @@ import torch.nn.functional as F
 
 from i2pbench.api import Frame, Keypoints2D, Keypoints3D
 
-from .official_matching import filter_matches
+from .matching import filter_matches
 
 
 def reference_frame(inputs: dict[str, np.ndarray]) -> tuple[Frame, Keypoints2D, Keypoints3D]:

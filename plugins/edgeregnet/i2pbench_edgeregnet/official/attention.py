@@ -10,7 +10,7 @@ As their code, and unlike attention.py:
   edge points enter with the normalised xyz the 3D branch sees.
 One thing differs in form only: the projections are channels-last Linear layers whose heads are contiguous channel
 blocks (channel = head * D/heads + d). The authors' Conv1d projections interleave them (`view(B, D/heads, heads, N)`:
-channel = d * heads + head); the checkpoint importer (official_import.py) permutes their weights once.
+channel = d * heads + head); the checkpoint importer (importer.py) permutes their weights once.
 """
 
 from __future__ import annotations
@@ -23,15 +23,16 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from i2pbench.api import BatchedStage, Component, Device, Exchanger, Frame, Keypoints2D, Keypoints3D
+from i2pbench.api import BatchedStage, Component, Device, Exchanger, Frame, Keypoints2D, Keypoints3D, width_mismatch
 from i2pbench.layers.attention import key_mask
 from i2pbench.layers.pointnet2 import seeded_cloud
+from i2pbench.layers.positions import centred_pixels
 
-from .matching import descriptor_dim_mismatch
-from .official_pointnet2 import OfficialPointNet2, normalize
-from .official_superpoint import OfficialSuperPoint
+from .pointnet2 import OfficialPointNet2, normalize
+from .superpoint import OfficialSuperPoint
 
 LAYERS = ("self", "cross") * 6  # cali_glue.py:202
+SUPERGLUE_SPAN = 0.7  # pixels divided by 0.7 of the canvas's longer side (cali_glue.py:27-37)
 
 
 class ChannelNorm(nn.BatchNorm1d):
@@ -50,7 +51,7 @@ def norm_affine(norm: nn.BatchNorm1d) -> tuple[torch.Tensor, torch.Tensor]:
     return scale, norm.bias - norm.running_mean * scale
 
 
-def mlp(widths: tuple[int, ...]) -> nn.Sequential:
+def batchnorm_mlp(widths: tuple[int, ...]) -> nn.Sequential:
     """SuperGlue's MLP, channels-last: Linear + BatchNorm + ReLU, the last Linear alone with a zero bias."""
     layers: list[nn.Module] = []
     for cin, cout in zip(widths[:-1], widths[1:], strict=True):
@@ -61,9 +62,9 @@ def mlp(widths: tuple[int, ...]) -> nn.Sequential:
 
 
 def run_mlp(layers: nn.Sequential, x: torch.Tensor, groups: int = 1) -> torch.Tensor:
-    """`mlp`'s layers on x [G*B x N x C], G modalities stacked on the batch axis. In eval each Linear + BatchNorm
-    is one Linear with the norm folded in; in training each modality is normalised by its own batch statistics,
-    as the authors' separate calls are."""
+    """`batchnorm_mlp`'s layers on x [G*B x N x C], G modalities stacked on the batch axis. In eval each Linear +
+    BatchNorm is one Linear with the norm folded in; in training each modality is normalised by its own batch
+    statistics, as the authors' separate calls are."""
     modules = list(layers)
     folded = False  # the previous Linear took this norm in
     for layer, following in zip(modules, [*modules[1:], None], strict=True):
@@ -79,12 +80,6 @@ def run_mlp(layers: nn.Sequential, x: torch.Tensor, groups: int = 1) -> torch.Te
     return x
 
 
-def normalize_pixels(uv: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
-    """pixels [... x 2] on a canvas of size (W, H) -> centred and divided by 0.7 of its longer side."""
-    w, h = size
-    return (uv - uv.new_tensor([w / 2, h / 2])) / (max(w, h) * 0.7)
-
-
 class AttentionalPropagation(nn.Module):
     """one tied GNN layer: x + MLP([x, MultiHeadAttention(x, source)]) for the 3D and the 2D side alike."""
 
@@ -92,7 +87,7 @@ class AttentionalPropagation(nn.Module):
         super().__init__()
         self.heads = heads
         self.q, self.k, self.v, self.merge = (nn.Linear(dim, dim) for _ in range(4))
-        self.mlp = mlp((2 * dim, 2 * dim, dim))
+        self.mlp = batchnorm_mlp((2 * dim, 2 * dim, dim))
 
     def forward(
         self, d3: torch.Tensor, d2: torch.Tensor, cross: bool, m3: torch.Tensor | None, m2: torch.Tensor | None
@@ -139,11 +134,11 @@ class OfficialAttention(BatchedStage, Exchanger):
     def __init__(self, conf: dict[str, Any] | None = None) -> None:
         super().__init__(conf)
         dim, hidden = self.conf["descriptor_dim"], tuple(self.conf["kenc"])
-        self.kenc2d, self.kenc3d = mlp((2, *hidden, dim)), mlp((3, *hidden, dim))
+        self.kenc2d, self.kenc3d = batchnorm_mlp((2, *hidden, dim)), batchnorm_mlp((3, *hidden, dim))
         self.layers = nn.ModuleList(AttentionalPropagation(dim, self.conf["num_heads"]) for _ in self.conf["layers"])
 
     def check_compatible(self, upstream: Mapping[str, Component]) -> str | None:
-        return descriptor_dim_mismatch(self, upstream)
+        return width_mismatch(self, upstream, ("descriptor_dim",))
 
     def prepare(
         self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, device: Device = "cpu", cache: dict | None = None
@@ -153,7 +148,7 @@ class OfficialAttention(BatchedStage, Exchanger):
         xyz = torch.from_numpy(np.asarray(kp3d.xyz, np.float32))
         if len(xyz):
             xyz = normalize(xyz, torch.from_numpy(seeded_cloud(frame, self.conf["num_points"])))
-        uv = normalize_pixels(uv, tuple(self.conf["canvas"]))
+        uv = centred_pixels(uv, tuple(self.conf["canvas"]), SUPERGLUE_SPAN)
         return {"uv": uv.to(device), "xyz": xyz.to(device)}
 
     def forward(
