@@ -60,6 +60,7 @@ LAYER_CODE = {
     "frame_norm": (0, "b360eba841ba"),
     "global_pointnet2": (0, "8747a5b05659"),  # BatchedStage, seeded_cloud, deep merge_conf: same outputs
     "kernels": (1, "4a6546946f55"),  # FPS sums rounded squares unfused, as the authors' PointNet++ (issue 39)
+    "kpconv": (0, "afae9f47a5ac"),  # KPConv of CoFiI2P's official size (issue 39)
     "mlp": (0, "1e8fb86b56f9"),
     "nodes": (0, "57e284127b45"),
     "peer_inputs": (1, "f237d6447cc1"),  # a protocol card's already-prepared frame is refused (was: zero cells)

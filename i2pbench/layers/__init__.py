@@ -8,6 +8,8 @@
 - `frame_norm`, `mlp`: per-keypoint MLPs normalised over each frame's keypoints, or by LayerNorm;
 - `attention`, `nodes`: the key mask of padded attention; node pooling and per-frame means;
 - `positions`: pixels centred and scaled for positional encoders (EdgeRegNet's and its authors' exchangers);
+- `kpconv`: rigid kernel point convolution on fixed-size neighbour lists with a shadow row, and a seeded kernel
+  disposition (CoFiI2P's KPConv-FPN);
 - `sparse`, `point_voxel`: sparse 3D convolution in plain torch computing torchsparse 2.0's function, and SPVCNN's
   point <-> voxel conversions (VP2P-Match);
 - `peer_inputs`: the authors' KITTI inputs for the official sizes of CorrI2P, DeepI2P and VP2P-Match (image crop, cells
