@@ -63,6 +63,7 @@ LAYER_CODE = {
     "mlp": (0, "1e8fb86b56f9"),
     "nodes": (0, "57e284127b45"),
     "peer_inputs": (0, "0b74d4a1d908"),  # moved from the CorrI2P, DeepI2P, VP2P-Match official stages: same outputs
+    "point_pyramid": (0, "89a7e54dc7c8"),  # CoFiI2P's KPConv pyramid (issue 39)
     "pointnet2": (1, "ee6c35457d80"),  # the torch FPS rounds as the compiled one (issue 39); seeded_cloud: same
     "point_voxel": (0, "6454dd9cb5d5"),
     "resnet": (0, "38d6e5b5dcfe"),
