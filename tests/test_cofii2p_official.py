@@ -1,0 +1,151 @@
+"""CoFiI2P's official size around the authors' network (whose tensors tests/test_cofii2p_reference.py proves): the
+loader's preparation, the fine-map geometry, eval_all.py's fine matching and solvePnPRansac, the size's declaration,
+and untrained frames end to end (default card and the cofii2p card)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from i2pbench_cofii2p.official.matching import cell_rows, fine_pixels, node_rows
+from i2pbench_cofii2p.official.prepare import loader_cloud, loader_crop, loader_draw, network_axes, network_inputs
+from i2pbench_cofii2p.official.solver import OfficialPnP, fine_camera, fine_coordinates
+from i2pbench_cofii2p.official.stages import OfficialGrid, fine_cells, grid_pixels
+
+from i2pbench.api import Frame, Keypoints2D, Keypoints3D, Matches, make_transform
+from i2pbench.boards import leaderboard
+from i2pbench.cli import main
+from i2pbench.registry.build import default_registry
+
+K = np.array([[718.856, 0, 607.1928], [0, 718.856, 185.2157], [0, 0, 1]])
+
+
+def frame(width: int = 1242, height: int = 375, points: np.ndarray | None = None, T_init=None) -> Frame:
+    points = np.zeros((0, 4), np.float32) if points is None else points
+    return Frame("test", "0", np.zeros((height, width, 3), np.uint8), points, np.zeros(len(points), np.int16),
+                 np.ones(len(points), np.float32), K, None, T_init=T_init)  # fmt: skip
+
+
+def test_grid_pixels_are_the_fine_map_cells_under_the_frames_K():
+    # a 1242 x 375 image halved to 621 x 188 (int(round(187.5)) = 188), crop offsets dx = int((621 - 512) / 2) = 54,
+    # dy = int((188 - 160) / 2) = 14, no top rows cut (data/kitti.py:306-320); fine cell (x, y) of the 256 x 80 map
+    # at u = 4x + 108, v = 4y + 28
+    uv = grid_pixels(1242, 375)
+    assert uv.shape == (80 * 256, 2)
+    np.testing.assert_array_equal(uv[[0, 1, 256, -1]], [[108, 28], [112, 28], [108, 32], [1128, 344]])
+    np.testing.assert_array_equal(fine_cells(uv + 3.9, 1242, 375), np.arange(len(uv)))
+    # their K_2: K x 0.5, minus the offsets, x 0.5 (data/kitti.py:310,320,325)
+    K2 = fine_camera(K, 1242, 375, {"scale": 0.5, "crop": (512, 160)})
+    np.testing.assert_allclose(K2, [[179.714, 0, 124.7982], [0, 179.714, 39.303925], [0, 0, 1]], rtol=1e-6)
+    points = np.random.default_rng(0).uniform([-10, -2, 5], [10, 2, 40], (50, 3))
+    fine = (points @ K2.astype(np.float64).T)[:, :2] / points[:, 2:]
+    full = (points @ K.T)[:, :2] / points[:, 2:]
+    np.testing.assert_allclose(full, 4 * fine + [108, 28], atol=1e-4)  # K_2 holds K in float32
+    np.testing.assert_allclose(fine_coordinates(full, 1242, 375, {"scale": 0.5, "crop": (512, 160)}), fine,
+                               atol=1e-4)  # fmt: skip
+
+
+def test_a_frame_the_cofii2p_card_built_is_taken_as_it_is():
+    # the card hands the loader's 160 x 512 crop and its K: the grid is then the crop's stride-2 cells, u = 2x
+    assert loader_crop(512, 160, {"scale": 0.5, "crop": (512, 160)})["scale"] == 1.0
+    uv = OfficialGrid()(frame(512, 160)).uv
+    np.testing.assert_array_equal(uv[[0, 1, 256]], [[0, 0], [2, 0], [0, 2]])
+    np.testing.assert_allclose(fine_camera(K, 512, 160, {"scale": 0.5, "crop": (512, 160)}), K * [[.5], [.5], [1]],
+                               rtol=1e-6)  # fmt: skip
+    cloud = np.random.default_rng(1).uniform(-20, 20, (2048, 4)).astype(np.float32)
+    kp3d = loader_cloud(frame(512, 160, cloud, np.eye(4)), 2048, 0)
+    np.testing.assert_array_equal(kp3d.index, np.arange(2048))  # its points, in the card's draw order
+    np.testing.assert_array_equal(kp3d.xyz, cloud[:, :3])
+
+
+def test_the_loader_draw_repeats_every_point_before_drawing_the_rest():
+    state = np.random.RandomState(5)
+    drawn = loader_draw(3, 8, state)
+    # 3 points into 8: all of them twice (while 3 + 6 >= 8 stops the repeats), then 2 drawn without repeats
+    np.testing.assert_array_equal(drawn[:6], [0, 1, 2, 0, 1, 2])
+    np.testing.assert_array_equal(drawn[6:], np.random.RandomState(5).choice(3, 2, replace=False))
+    assert sorted(loader_draw(10, 4, np.random.RandomState(0))) == sorted(
+        np.random.RandomState(0).choice(10, 4, replace=False)
+    )
+
+
+def test_the_cloud_meets_the_network_in_camera_axes_with_up_normals():
+    rng = np.random.default_rng(2)
+    ground = np.column_stack([rng.uniform(-5, 5, (8000, 2)), np.full(8000, -1.7), rng.uniform(0, 1, 8000)])
+    scan = ground.astype(np.float32)  # a flat ground 1.7 m below a LiDAR, dense enough for every voxel's normal
+    T_cam_lidar = make_transform(np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]]), np.zeros(3))
+    f = frame(points=scan, T_init=T_cam_lidar)
+    np.testing.assert_array_equal(network_axes(f), T_cam_lidar)
+    kp3d = loader_cloud(f, 2048, 0)
+    data, image, pyramid = network_inputs(f, kp3d, {"seed": 0, "features": "normals", "scale": 0.5,
+                                                   "crop": (512, 160)})  # fmt: skip
+    assert tuple(image.shape) == (1, 3, 160, 512)
+    np.testing.assert_allclose(data["points"][0][:, 1].numpy(), 1.7, atol=1e-5)  # below the camera: +y
+    feats = data["feats"].numpy()
+    np.testing.assert_allclose(feats[:, 1:], np.tile([0, -1, 0], (2048, 1)), atol=1e-5)  # ground normals: up, -y
+    np.testing.assert_array_equal(feats[:, 0], kp3d.reflectance)
+    assert data["lengths"] == [2048, 1024, 512, 256, 128]
+    np.testing.assert_array_equal(pyramid.points[0].numpy(), data["points"][0].numpy())
+
+
+def test_fine_matching_takes_the_patch_cell_of_highest_cosine_with_the_authors_axes():
+    patches = torch.zeros(2, 2, 16)
+    patches[0, :, 6] = torch.tensor([1.0, 0])  # point 0's best: cell 6 = row 1, column 2
+    patches[1, :, 13] = torch.tensor([0.6, 0.8])  # point 1's best: cell 13 = row 3, column 1
+    points = torch.tensor([[1.0, 0], [0.6, 0.8]])
+    centres = torch.tensor([[20.0, 100], [8, 40]])  # (x, y) of the two patch centres
+    xy, score = fine_pixels(patches, points, centres)
+    # eval_all.py: x = centre x - 2 + index // 4, y = centre y - 2 + index % 4
+    np.testing.assert_array_equal(xy.numpy(), [[20 - 2 + 1, 100 - 2 + 3], [8 - 2 + 2, 40 - 2 + 1]])
+    np.testing.assert_allclose(score.numpy(), [1.0, 1.0], rtol=1e-6)
+    upright, _ = fine_pixels(patches, points, centres, swap_patch_axes=False)
+    np.testing.assert_array_equal(upright.numpy(), [[20 - 2 + 2, 100 - 2 + 1], [8 - 2 + 1, 40 - 2 + 3]])
+
+
+def test_chosen_points_and_cells_map_back_to_the_extractors_rows():
+    nodes = torch.tensor([[0.0, 0, 0], [1, 2, 3], [1, 2, 3], [4, 5, 6]])
+    np.testing.assert_array_equal(node_rows(nodes, torch.tensor([[4.0, 5, 6], [1, 2, 3]])), [3, 1])
+    with pytest.raises(ValueError, match="not one of the coarsest"):
+        node_rows(nodes, torch.tensor([[9.0, 9, 9]]))
+    # keypoint rows 0..4 fall in cells 3, -1 (outside), 1, 3, 0 -> cell 0: row 4, 1: row 2, 2: none, 3: row 0
+    np.testing.assert_array_equal(cell_rows(np.array([3, -1, 1, 3, 0]), 4), [4, 2, -1, 0])
+
+
+def test_the_solver_recovers_a_known_pose_from_exact_pairs():
+    rng = np.random.default_rng(3)
+    T_cam_lidar = make_transform(np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]]), np.array([0.06, -0.08, -0.27]))
+    yaw = 0.7
+    T_rand = make_transform(np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]),
+                            np.array([3.0, -4.0, 0]))  # fmt: skip
+    T_gt = T_cam_lidar @ np.linalg.inv(T_rand)
+    camera = rng.uniform([-8, -1, 6], [8, 2, 40], (60, 3))  # points in front of the camera
+    moved = (np.linalg.inv(T_gt) @ np.column_stack([camera, np.ones(60)]).T).T[:, :3]
+    uv = (camera @ K.T)[:, :2] / camera[:, 2:]
+    f = frame(points=np.column_stack([moved, np.zeros(60)]).astype(np.float32), T_init=T_cam_lidar)
+    kp3d = Keypoints3D.from_index(f, np.arange(60))
+    pairs = Matches(np.arange(60), np.arange(60), np.ones(60, np.float32))
+    pose = OfficialPnP()(f, Keypoints2D(uv.astype(np.float32)), kp3d, pairs)
+    assert pose.ok and len(pose.inliers) == 60
+    np.testing.assert_allclose(pose.T, T_gt, atol=2e-3)
+    assert not OfficialPnP()(f, Keypoints2D(uv[:3].astype(np.float32)), kp3d, Matches(*[np.arange(3)] * 2,
+                                                                                      np.ones(3, np.float32))).ok
+    assert OfficialPnP().conf["iterations"] == 10000 and OfficialPnP().conf["reprojection_error_px"] == 8.0
+
+
+def test_the_official_size_runs_the_authors_stages():
+    (row,) = default_registry().preset_rows("cofii2p-official")
+    assert row["matcher"] == "cofii2p-official" and row["encoder2d"] == row["encoder3d"] == row["exchanger"] == "none"
+    assert row["extractor2d"] == "cofii2p-official-grid" and row["extractor3d"] == "cofii2p-official-points"
+    assert row["solver"] == "cofii2p-official-pnp"
+
+
+@pytest.mark.parametrize("protocol", ["edgeregnet", "cofii2p"])
+def test_the_preset_runs_a_kitti_frame_untrained_and_says_so(shared_data, tmp_path, protocol):
+    torch.set_num_threads(1)
+    runs = tmp_path / "runs"
+    data = ["--dataset", "kitti", "--data-root", str(shared_data / "kitti_odometry"), "--split", "all", "--frames", "1"]
+    small = ["--conf", "extractor3d.max_keypoints=2048", "--threads", "1", "--protocol", protocol]  # fewer points
+    assert main(["run", "--preset", "cofii2p-official", *data, *small, "--runs-dir", str(runs), "--quiet"]) == 0
+    board = leaderboard.read(next((runs / "leaderboards").glob("*.csv")))
+    assert len(board) == 1 and board.iloc[0]["weights"] == "untrained"
+    assert board.iloc[0]["method"] == "CoFiI2P" and board.iloc[0]["Acc. (%) ↑"] == 0.0
