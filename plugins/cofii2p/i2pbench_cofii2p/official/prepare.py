@@ -17,6 +17,7 @@ each point takes its nearest voxel's.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
@@ -32,7 +33,7 @@ from i2pbench.layers.peer_inputs import (
     image_input,
     open3d_voxels,
 )
-from i2pbench.layers.point_pyramid import PointPyramid, point_pyramid
+from i2pbench.layers.point_pyramid import NEIGHBOURS, STAGES, PointPyramid, point_pyramid
 from i2pbench.layers.pointnet2 import frame_seed
 
 NUM_POINTS = 20480  # data/options.py num_pc
@@ -40,6 +41,7 @@ CELL_PX = 2  # the fine map's stride in the crop (the network's 1/2-scale image 
 # the loader's image preparation (data/kitti.py:306-320: x0.5, centre crop to options.py img_W x img_H; no top rows cut)
 CROP: dict[str, Any] = {"scale": 0.5, "crop": (512, 160)}
 CAMERA_UP = (0.0, -1.0, 0.0)  # LiDAR +z in camera axes
+MIN_POINTS = NEIGHBOURS * 2 ** (STAGES - 1)  # the fewest whose coarsest level still has 128 neighbours to find
 
 
 def loader_crop(width: int, height: int, crop: Mapping[str, Any]) -> dict[str, Any]:
@@ -130,9 +132,14 @@ def point_features(frame: Frame, kp3d: Keypoints3D, pc: np.ndarray, features: st
 def network_inputs(
     frame: Frame, kp3d: Keypoints3D, conf: Mapping[str, Any]
 ) -> tuple[dict[str, Any], torch.Tensor, PointPyramid]:
-    """(the authors' `pc_data_dict`, the image [1 x 3 x H x W] in [0, 1], the pyramid whose level 0 is kp3d)."""
+    """(the authors' `pc_data_dict`, the image [1 x 3 x H x W] in [0, 1], the pyramid; its `picks` are kp3d rows).
+    Fewer than MIN_POINTS keypoints are repeated up to it as `downsample_np` repeats a small cloud."""
+    rng = np.random.RandomState([frame_seed(frame), int(conf["seed"])])
+    rows = loader_draw(len(kp3d), MIN_POINTS, rng) if len(kp3d) < MIN_POINTS else np.arange(len(kp3d))
+    kp3d = Keypoints3D(kp3d.index[rows], kp3d.xyz[rows], kp3d.reflectance[rows])
     pc = to_network(frame, kp3d.xyz)
-    pyramid = point_pyramid(pc, np.random.RandomState([frame_seed(frame), int(conf["seed"])]))
+    pyramid = point_pyramid(pc, rng)
+    pyramid = dataclasses.replace(pyramid, picks=[rows[p] for p in pyramid.picks])
     data = pyramid.as_inputs(point_features(frame, kp3d, pc, conf["features"]))
     width, height = frame.image_size
     image = image_input(frame.image, loader_crop(width, height, conf))[None]

@@ -71,7 +71,8 @@ class OfficialPoints(Extractor3D):
 
 class OfficialCoFiI2P(LearnedComponent, Matcher):
     """The authors' network in its test mode and eval_all.py's fine matching: each coarse point the network keeps,
-    paired with the fine-map cell of its patch whose feature is nearest in cosine similarity (matching.py)."""
+    paired with the fine-map cell of its patch whose feature is nearest in cosine similarity (matching.py). Fewer
+    than 2,048 points are repeated up to it (prepare.network_inputs)."""
 
     name = "cofii2p-official"
     consumes = frozenset({KEYPOINTS2D, KEYPOINTS3D})
@@ -100,7 +101,11 @@ class OfficialCoFiI2P(LearnedComponent, Matcher):
         if len(kp3d) == 0 or not (cells >= 0).any():  # an empty scan, or a frame too small for the crop
             return Matches.empty()
         data, image, pyramid = network_inputs(frame, kp3d, self.conf)
-        out = self.batched(data, image)
+        try:
+            out = self.batched(data, image)
+        except ValueError:  # under 4 pairs at any threshold (their loop never ends) or a patch off the map (theirs
+            # asserts): the network refuses the frame, and it gets no match
+            return Matches.empty()
         patches, point_features, centres, chosen = out[4], out[5], out[6], out[7]
         xy, score = fine_pixels(patches.reshape(len(chosen), patches.shape[-2], -1), point_features.reshape(
             len(chosen), -1), centres.float(), bool(self.conf["swap_patch_axes"]))  # fmt: skip
