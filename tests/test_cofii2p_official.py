@@ -27,31 +27,32 @@ def frame(width: int = 1242, height: int = 375, points: np.ndarray | None = None
 
 
 def test_grid_pixels_are_the_fine_map_cells_under_the_frames_K():
-    # a 1242 x 375 image halved to 621 x 188 (int(round(187.5)) = 188), crop offsets dx = int((621 - 512) / 2) = 54,
-    # dy = int((188 - 160) / 2) = 14, no top rows cut (data/kitti.py:306-320); fine cell (x, y) of the 256 x 80 map
-    # at u = 4x + 108, v = 4y + 28
+    # a 1242 x 375 image, its top 50 rows cut, halved to 621 x 162 (round(162.5) = 162, as the loader's), crop
+    # offsets dx = int((621 - 512) / 2) = 54, dy = int((162 - 160) / 2) = 1 (data/kitti.py:306-320); fine cell (x, y)
+    # of the 256 x 80 map at u = 4x + 108, v = 4y + 2 + 50
     uv = grid_pixels(1242, 375)
     assert uv.shape == (80 * 256, 2)
-    np.testing.assert_array_equal(uv[[0, 1, 256, -1]], [[108, 28], [112, 28], [108, 32], [1128, 344]])
+    np.testing.assert_array_equal(uv[[0, 1, 256, -1]], [[108, 52], [112, 52], [108, 56], [1128, 368]])
     np.testing.assert_array_equal(fine_cells(uv + 3.9, 1242, 375), np.arange(len(uv)))
-    # their K_2: K x 0.5, minus the offsets, x 0.5 (data/kitti.py:310,320,325)
-    K2 = fine_camera(K, 1242, 375, {"scale": 0.5, "crop": (512, 160)})
-    np.testing.assert_allclose(K2, [[179.714, 0, 124.7982], [0, 179.714, 39.303925], [0, 0, 1]], rtol=1e-6)
+    # their K_2: K of the cut image (cy - 50), x 0.5, minus the offsets, x 0.5 (data/kitti.py:310,320,325)
+    crop = {"top_rows": 50, "scale": 0.5, "crop": (512, 160)}
+    K2 = fine_camera(K, 1242, 375, crop)
+    np.testing.assert_allclose(K2, [[179.714, 0, 124.7982], [0, 179.714, 33.303925], [0, 0, 1]], rtol=1e-6)
     points = np.random.default_rng(0).uniform([-10, -2, 5], [10, 2, 40], (50, 3))
     fine = (points @ K2.astype(np.float64).T)[:, :2] / points[:, 2:]
     full = (points @ K.T)[:, :2] / points[:, 2:]
-    np.testing.assert_allclose(full, 4 * fine + [108, 28], atol=1e-4)  # K_2 holds K in float32
-    np.testing.assert_allclose(fine_coordinates(full, 1242, 375, {"scale": 0.5, "crop": (512, 160)}), fine,
-                               atol=1e-4)  # fmt: skip
+    np.testing.assert_allclose(full, 4 * fine + [108, 52], atol=1e-4)  # K_2 holds K in float32
+    np.testing.assert_allclose(fine_coordinates(full, 1242, 375, crop), fine, atol=1e-4)
 
 
 def test_a_frame_the_cofii2p_card_built_is_taken_as_it_is():
     # the card hands the loader's 160 x 512 crop and its K: the grid is then the crop's stride-2 cells, u = 2x
-    assert loader_crop(512, 160, {"scale": 0.5, "crop": (512, 160)})["scale"] == 1.0
+    assert loader_crop(512, 160, {"top_rows": 50, "scale": 0.5, "crop": (512, 160)}) == {"top_rows": 0, "scale": 1.0,
+                                                                                          "crop": (512, 160)}
     uv = OfficialGrid()(frame(512, 160)).uv
     np.testing.assert_array_equal(uv[[0, 1, 256]], [[0, 0], [2, 0], [0, 2]])
-    np.testing.assert_allclose(fine_camera(K, 512, 160, {"scale": 0.5, "crop": (512, 160)}), K * [[.5], [.5], [1]],
-                               rtol=1e-6)  # fmt: skip
+    np.testing.assert_allclose(fine_camera(K, 512, 160, {"top_rows": 50, "scale": 0.5, "crop": (512, 160)}),
+                               K * [[.5], [.5], [1]], rtol=1e-6)  # fmt: skip
     cloud = np.random.default_rng(1).uniform(-20, 20, (2048, 4)).astype(np.float32)
     kp3d = loader_cloud(frame(512, 160, cloud, np.eye(4)), 2048, 0)
     np.testing.assert_array_equal(kp3d.index, np.arange(2048))  # its points, in the card's draw order
@@ -77,7 +78,7 @@ def test_the_cloud_meets_the_network_in_camera_axes_with_up_normals():
     f = frame(points=scan, T_init=T_cam_lidar)
     np.testing.assert_array_equal(network_axes(f), T_cam_lidar)
     kp3d = loader_cloud(f, 2048, 0)
-    data, image, pyramid = network_inputs(f, kp3d, {"seed": 0, "features": "normals", "scale": 0.5,
+    data, image, pyramid = network_inputs(f, kp3d, {"seed": 0, "features": "normals", "top_rows": 50, "scale": 0.5,
                                                    "crop": (512, 160)})  # fmt: skip
     assert tuple(image.shape) == (1, 3, 160, 512)
     np.testing.assert_allclose(data["points"][0][:, 1].numpy(), 1.7, atol=1e-5)  # below the camera: +y
