@@ -47,8 +47,11 @@ def test_grid_pixels_are_the_fine_map_cells_under_the_frames_K():
 
 def test_a_frame_the_cofii2p_card_built_is_taken_as_it_is():
     # the card hands the loader's 160 x 512 crop and its K: the grid is then the crop's stride-2 cells, u = 2x
-    assert loader_crop(512, 160, {"top_rows": 50, "scale": 0.5, "crop": (512, 160)}) == {"top_rows": 0, "scale": 1.0,
-                                                                                          "crop": (512, 160)}
+    assert loader_crop(512, 160, {"top_rows": 50, "scale": 0.5, "crop": (512, 160)}) == {
+        "top_rows": 0,
+        "scale": 1.0,
+        "crop": (512, 160),
+    }
     uv = OfficialGrid()(frame(512, 160)).uv
     np.testing.assert_array_equal(uv[[0, 1, 256]], [[0, 0], [2, 0], [0, 2]])
     np.testing.assert_allclose(fine_camera(K, 512, 160, {"top_rows": 50, "scale": 0.5, "crop": (512, 160)}),
@@ -128,8 +131,9 @@ def test_the_solver_recovers_a_known_pose_from_exact_pairs():
     pose = OfficialPnP()(f, Keypoints2D(uv.astype(np.float32)), kp3d, pairs)
     assert pose.ok and len(pose.inliers) == 60
     np.testing.assert_allclose(pose.T, T_gt, atol=2e-3)
-    assert not OfficialPnP()(f, Keypoints2D(uv[:3].astype(np.float32)), kp3d, Matches(*[np.arange(3)] * 2,
-                                                                                      np.ones(3, np.float32))).ok
+    assert not OfficialPnP()(
+        f, Keypoints2D(uv[:3].astype(np.float32)), kp3d, Matches(*[np.arange(3)] * 2, np.ones(3, np.float32))
+    ).ok
     assert OfficialPnP().conf["iterations"] == 10000 and OfficialPnP().conf["reprojection_error_px"] == 8.0
 
 
