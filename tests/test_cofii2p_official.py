@@ -27,21 +27,25 @@ def frame(width: int = 1242, height: int = 375, points: np.ndarray | None = None
 
 
 def test_grid_pixels_are_the_fine_map_cells_under_the_frames_K():
-    # a 1242 x 375 image, its top 50 rows cut, halved to 621 x 162 (round(162.5) = 162, as the loader's), crop
-    # offsets dx = int((621 - 512) / 2) = 54, dy = int((162 - 160) / 2) = 1 (data/kitti.py:306-320); fine cell (x, y)
-    # of the 256 x 80 map at u = 4x + 108, v = 4y + 2 + 50
+    # a 1242 x 375 image halved to 621 x 188 (int(round(187.5)) = 188), crop offsets dx = int((621 - 512) / 2) = 54,
+    # dy = int((188 - 160) / 2) = 14, no rows cut (data/kitti.py:306-320); fine cell (x, y) of the 256 x 80 map at
+    # u = 4x + 108, v = 4y + 28
     uv = grid_pixels(1242, 375)
     assert uv.shape == (80 * 256, 2)
-    np.testing.assert_array_equal(uv[[0, 1, 256, -1]], [[108, 52], [112, 52], [108, 56], [1128, 368]])
+    np.testing.assert_array_equal(uv[[0, 1, 256, -1]], [[108, 28], [112, 28], [108, 32], [1128, 344]])
     np.testing.assert_array_equal(fine_cells(uv + 3.9, 1242, 375), np.arange(len(uv)))
-    # their K_2: K of the cut image (cy - 50), x 0.5, minus the offsets, x 0.5 (data/kitti.py:310,320,325)
-    crop = {"top_rows": 50, "scale": 0.5, "crop": (512, 160)}
+    # their K_2: K x 0.5, minus the offsets, x 0.5 (data/kitti.py:310,320,325)
+    crop = {"top_rows": 0, "scale": 0.5, "crop": (512, 160)}
     K2 = fine_camera(K, 1242, 375, crop)
-    np.testing.assert_allclose(K2, [[179.714, 0, 124.7982], [0, 179.714, 33.303925], [0, 0, 1]], rtol=1e-6)
+    np.testing.assert_allclose(K2, [[179.714, 0, 124.7982], [0, 179.714, 39.303925], [0, 0, 1]], rtol=1e-6)
+    # with DeepI2P's cut of 50 rows (`top_rows`): 325 rows halved to 162 (round(162.5) = 162), dy = 1, v = 4y + 52
+    cut = {**crop, "top_rows": 50}
+    np.testing.assert_array_equal(grid_pixels(1242, 375, cut)[[0, -1]], [[108, 52], [1128, 368]])
+    np.testing.assert_allclose(fine_camera(K, 1242, 375, cut)[1, 2], (185.2157 - 50) / 4 - 0.5, rtol=1e-6)
     points = np.random.default_rng(0).uniform([-10, -2, 5], [10, 2, 40], (50, 3))
     fine = (points @ K2.astype(np.float64).T)[:, :2] / points[:, 2:]
     full = (points @ K.T)[:, :2] / points[:, 2:]
-    np.testing.assert_allclose(full, 4 * fine + [108, 52], atol=1e-4)  # K_2 holds K in float32
+    np.testing.assert_allclose(full, 4 * fine + [108, 28], atol=1e-4)  # K_2 holds K in float32
     np.testing.assert_allclose(fine_coordinates(full, 1242, 375, crop), fine, atol=1e-4)
 
 

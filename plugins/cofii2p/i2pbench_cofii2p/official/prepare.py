@@ -38,9 +38,9 @@ from i2pbench.layers.pointnet2 import frame_seed
 
 NUM_POINTS = 20480  # data/options.py num_pc
 CELL_PX = 2  # the fine map's stride in the crop (the network's 1/2-scale image features, K_2)
-# the image preparation: the top rows cut (options.py `crop_original_top_rows`, in the files the loader reads: its
-# img_H comment "320 * 0.5"), then data/kitti.py:306-320: x0.5, centre crop to options.py img_W x img_H
-CROP: dict[str, Any] = {"top_rows": 50, "scale": 0.5, "crop": (512, 160)}
+# the image preparation of data/kitti.py:306-320: no rows cut (`top_rows`: options.py's crop_original_top_rows is read
+# by no loader line), x0.5, centre crop to options.py img_W x img_H
+CROP: dict[str, Any] = {"top_rows": 0, "scale": 0.5, "crop": (512, 160)}
 CAMERA_UP = (0.0, -1.0, 0.0)  # LiDAR +z in camera axes
 MIN_POINTS = NEIGHBOURS * 2 ** (STAGES - 1)  # the fewest whose coarsest level still has 128 neighbours to find
 

@@ -2,13 +2,13 @@
 on the coordinates they call it with.
 
 Their call passes the fine-map pixels (x, y on the 1/2-scale map of the 160 x 512 crop) with K_2, K of that map
-(data/kitti.py:306-325: K of the files, whose top rows are cut, x 0.5, the crop's offsets, x 0.5 again), the
-chosen coarse points in the network's axes, `iterationsCount=10000`, `distCoeffs=None`, and OpenCV's defaults for
-the rest: SOLVEPNP_ITERATIVE, 8.0 px (on that map: 32 px of a full-size KITTI image), confidence 0.99. This stage
-maps each matched pixel back to its fine-map cell and each point into network axes (prepare.py), makes the same
-call (in float32, as their tensors are), and returns the pose of the frame's points: the network-axes pose composed
-with `network_axes(frame)`. OpenCV's RANSAC generator is seeded before each call (`seed`), where theirs runs on in
-one process.
+(data/kitti.py:306-325: K of the whole image, x 0.5, the crop's offsets, x 0.5 again; rows cut first if `top_rows`),
+the chosen coarse points in the network's axes, `iterationsCount=10000`, `distCoeffs=None`, and OpenCV's defaults
+for the rest: SOLVEPNP_ITERATIVE, 8.0 px (on that map: 32 px of a full-size KITTI image), confidence 0.99. This
+stage maps each matched pixel back to its fine-map cell and each point into network axes (prepare.py), makes the
+same call (in float32, as their tensors are), and returns the pose of the frame's points: the network-axes pose
+composed with `network_axes(frame)`. OpenCV's RANSAC generator is seeded before each call (`seed`), where theirs
+runs on in one process.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def fine_camera(K: np.ndarray, width: int, height: int, crop: dict[str, Any]) ->
     if offsets is None:
         return None
     fine = np.asarray(K, np.float32).copy()
-    fine[1, 2] -= crop.get("top_rows", 0)  # the rows cut before the files were saved
+    fine[1, 2] -= crop.get("top_rows", 0)  # rows cut first, if any
     fine = fine * np.float32(crop["scale"])
     fine[2, 2] = 1
     fine[0, 2] -= offsets[0]

@@ -6,7 +6,7 @@ branches and picks its own coarse matches inside its test mode (model/network.py
 i2pbench's encoder/exchanger boundaries; the official size runs no encoder or exchanger (as CorrI2P's official size).
 
 Pixels (`cofii2p-official-grid`): every cell of the network's fine map (stride 2 in the 160 x 512 crop: 80 x 256),
-as the frame's pixel the authors' PnP puts it at: (4x + 2 dx, 4y + 2 dy + 50) on a full-size KITTI image. Points
+as the frame's pixel the authors' PnP puts it at: (4x + 2 dx, 4y + 2 dy) on a full-size KITTI image. Points
 (`cofii2p-official-points`): the loader's 20,480 (prepare.py).
 """
 
