@@ -112,10 +112,11 @@ class CoFiI2PNetwork(nn.Module):
         img_s8 = trace["img_s8"] = F.normalize(maps[2], dim=1)
         image_mid, pc_mid = self.attend(img_s8, F.normalize(trace["pc_feature_layer"], dim=1), data["points"][-1],
                                         trace)  # fmt: skip
-        trace["coarse_pc_score"] = coarse_pc_score = self.pc_score_layer(pc_mid)
-        trace["coarse_img_score"] = coarse_img_score = self.img_score_layer(image_mid)
-        trace["img_upsample_s4"] = up4 = self.img_upsample_1(img_s8, maps[1])
-        trace["img_upsample_s2"] = F.normalize(self.img_upsample_2(up4, maps[0]), dim=1)
+        trace["pc_score_layer"] = coarse_pc_score = self.pc_score_layer(pc_mid)
+        trace["img_score_layer"] = coarse_img_score = self.img_score_layer(image_mid)
+        trace["img_upsample_1"] = up4 = self.img_upsample_1(img_s8, maps[1])
+        trace["img_upsample_2"] = self.img_upsample_2(up4, maps[0])
+        trace["img_upsample_s2"] = F.normalize(trace["img_upsample_2"], dim=1)
         return F.normalize(image_mid, dim=1), F.normalize(pc_mid.squeeze(), dim=0), coarse_img_score, coarse_pc_score
 
     def attend(self, img_s8: torch.Tensor, pc_coarse: torch.Tensor, nodes: torch.Tensor, trace: dict):
