@@ -52,13 +52,14 @@ def test_a_folder_without_their_model_is_refused(tmp_path):
 
 
 def test_the_table_holds_every_official_method_with_the_authors_code_at_hand():
-    assert set(against_authors.METHODS) == {"edgeregnet", "corri2p", "deepi2p", "vp2p-match"}
+    assert set(against_authors.METHODS) == {"edgeregnet", "corri2p", "deepi2p", "vp2p-match", "cofii2p"}
 
 
 NETWORKS = [
     ("corri2p", "network.py"),
     ("deepi2p", "models/networks_united.py"),
     ("vp2p-match", "models/triplet_network.py"),
+    ("cofii2p", "model/network.py"),
 ]
 
 
@@ -118,6 +119,7 @@ CHECKOUTS = {
     "corri2p": ("I2PBENCH_CORRI2P_CHECKOUT", 2048, ["image", "points", "exchange"]),
     "deepi2p": ("I2PBENCH_DEEPI2P_CHECKOUT", 1024, ["image", "points", "exchange"]),
     "vp2p-match": ("I2PBENCH_VP2P_CHECKOUT", 1024, ["image", "points", "voxels", "fusion"]),
+    "cofii2p": ("I2PBENCH_COFII2P_CHECKOUT", 2048, ["pyramid", "image", "points", "exchange"]),
 }
 
 
@@ -129,6 +131,8 @@ def test_a_tiny_run_checks_both_sides_against_the_reference_set_then_times_them(
         pytest.skip(f"{variable} is not set: the path of the authors' {method} checkout")
     if method == "vp2p-match" and importlib.util.find_spec("torchsparse") is None:
         pytest.skip(f"torchsparse is not importable in {sys.executable}: the authors' VP2P-Match code needs it")
+    if method == "cofii2p" and importlib.util.find_spec("einops") is None:
+        pytest.skip(f"einops is not importable in {sys.executable}: the authors' CoFiI2P transformer needs it")
     sample("kitti_odometry")  # the timed frame is the reference set's, prepared again at --points
     out = tmp_path / "run.json"
     argv = ["--method", method, "--checkout", checkout, "--points", str(points), "--threads", "1", "--repeat", "1"]
