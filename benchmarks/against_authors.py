@@ -518,10 +518,10 @@ def recorded_outputs(tensors: dict[str, torch.Tensor], meta: dict) -> dict[str, 
 
 
 def pyramid_errors(theirs: dict, ours: dict) -> dict[str, float]:
-    """0 where the two pyramids' points and neighbour lists are equal, inf where not."""
+    """ours against theirs: 0 where the two pyramids' points and neighbour lists are equal, inf where not."""
     keys = ("points", "neighbors", "subsampling", "upsampling")
     same = all(torch.equal(a, b.to(a.dtype)) for k in keys for a, b in zip(ours[k], theirs[k], strict=True))
-    return {"pyramid": 0.0 if same else float("inf")}
+    return {"ours pyramid": 0.0 if same else float("inf")}
 
 
 def cofii2p(checkout: Path, args: argparse.Namespace) -> Pair:
