@@ -1,8 +1,12 @@
 """CoFiI2P's official size around the authors' network (whose tensors tests/test_cofii2p_reference.py proves): the
 loader's preparation, the fine-map geometry, eval_all.py's fine matching and solvePnPRansac, the size's declaration,
-and untrained frames end to end (default card and the cofii2p card)."""
+untrained frames end to end (default card and the cofii2p card), and the authors' layout imported through the command
+and run by the preset."""
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,6 +20,7 @@ from i2pbench.api import Frame, Keypoints2D, Keypoints3D, Matches, make_transfor
 from i2pbench.boards import leaderboard
 from i2pbench.cli import main
 from i2pbench.registry.build import default_registry
+from i2pbench.testing.recipe import recipe_state
 
 K = np.array([[718.856, 0, 607.1928], [0, 718.856, 185.2157], [0, 0, 1]])
 
@@ -158,3 +163,20 @@ def test_the_preset_runs_a_kitti_frame_untrained_and_says_so(shared_data, tmp_pa
     board = leaderboard.read(next((runs / "leaderboards").glob("*.csv")))
     assert len(board) == 1 and board.iloc[0]["weights"] == "untrained"
     assert board.iloc[0]["method"] == "CoFiI2P" and board.iloc[0]["Acc. (%) ↑"] == 0.0
+
+
+def test_the_command_imports_authors_weights_that_the_preset_then_runs(shared_data, tmp_path):
+    reference = Path(__file__).parent / "data" / "reference" / "cofii2p"
+    state, _ = recipe_state(json.loads((reference / "state_dict_shapes.json").read_text()), "preset")
+    with np.load(reference / "inputs.npz") as inputs:
+        state |= {k: torch.from_numpy(inputs[k]) for k in inputs.files if k.endswith("kernel_points")}
+    source, weights = tmp_path / "cofii2p_kitti.t7", tmp_path / "W.pt"
+    torch.save({"module." + k: v for k, v in state.items()}, source)
+    assert main(["weights", "import", "cofii2p-official", str(source), "--out", str(weights)]) == 0
+    torch.set_num_threads(1)
+    runs = tmp_path / "runs"
+    data = ["--dataset", "kitti", "--data-root", str(shared_data / "kitti_odometry"), "--split", "all", "--frames", "1"]
+    small = ["--conf", "extractor3d.max_keypoints=2048", "--threads", "1", "--weights", str(weights)]
+    assert main(["run", "--preset", "cofii2p-official", *data, *small, "--runs-dir", str(runs), "--quiet"]) == 0
+    board = leaderboard.read(next((runs / "leaderboards").glob("*.csv")))
+    assert board.iloc[0]["weights"].startswith("W@")  # the imported file, not "untrained"
