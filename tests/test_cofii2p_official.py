@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -14,11 +15,12 @@ import torch
 from i2pbench_cofii2p.official.matching import cell_rows, fine_pixels, node_rows
 from i2pbench_cofii2p.official.prepare import loader_cloud, loader_crop, loader_draw, network_axes, network_inputs
 from i2pbench_cofii2p.official.solver import OfficialPnP, fine_camera, fine_coordinates
-from i2pbench_cofii2p.official.stages import OfficialGrid, fine_cells, grid_pixels
+from i2pbench_cofii2p.official.stages import OfficialCoFiI2P, OfficialGrid, fine_cells, grid_pixels
 
 from i2pbench.api import Frame, Keypoints2D, Keypoints3D, Matches, make_transform
 from i2pbench.boards import leaderboard
 from i2pbench.cli import main
+from i2pbench.layers.point_pyramid import PointPyramid
 from i2pbench.registry.build import default_registry
 from i2pbench.testing.recipe import recipe_state
 
@@ -122,6 +124,29 @@ def test_chosen_points_and_cells_map_back_to_the_extractors_rows():
         node_rows(nodes, torch.tensor([[9.0, 9, 9]]))
     # keypoint rows 0..4 fall in cells 3, -1 (outside), 1, 3, 0 -> cell 0: row 4, 1: row 2, 2: none, 3: row 0
     np.testing.assert_array_equal(cell_rows(np.array([3, -1, 1, 3, 0]), 4), [4, 2, -1, 0])
+
+
+def test_the_matcher_turns_the_networks_test_outputs_into_pairs_of_extractor_rows():
+    patches = torch.zeros(2, 2, 16)
+    patches[0, :, 6] = torch.tensor([1.0, 0])  # point 0's best: patch row 1, column 2
+    patches[1, :, 13] = torch.tensor([0.6, 0.8])  # point 1's best: patch row 3, column 1
+    point_features, centres = torch.tensor([[1.0, 0], [0.6, 0.8]]), torch.tensor([[20.0, 100], [8, 40]])
+    nodes = torch.tensor([[0.0, 0, 0], [1, 1, 1], [2, 2, 2]])
+    chosen = nodes[[2, 0]]  # the network chose coarse points 2 and 0
+    pyramid = PointPyramid([nodes], [], [], [], [np.array([70, 71, 72])])  # level rows -> the extractor's rows
+    cells = np.arange(80 * 256)  # the official grid: keypoint row = cell
+    conf = {**OfficialCoFiI2P.default_conf}
+    matches = OfficialCoFiI2P.pairs(SimpleNamespace(conf=conf), [patches, point_features, centres, chosen], cells,
+                                    pyramid)  # fmt: skip
+    # centres (x, y) = (20, 8) and (100, 40); fine pixels (20 - 2 + 1, 8 - 2 + 2) = (19, 8) and (100 - 2 + 3,
+    # 40 - 2 + 1) = (101, 39) (eval_all.py's axes): cells 8 * 256 + 19 and 39 * 256 + 101
+    np.testing.assert_array_equal(matches.index2d, [8 * 256 + 19, 39 * 256 + 101])
+    np.testing.assert_array_equal(matches.index3d, [72, 70])
+    assert matches.radius_px == 4.0
+    off_grid = np.where(cells == 8 * 256 + 19, -1, cells)  # no keypoint in point 0's cell: that pair is dropped
+    matches = OfficialCoFiI2P.pairs(SimpleNamespace(conf=conf), [patches, point_features, centres, chosen],
+                                    off_grid, pyramid)  # fmt: skip
+    np.testing.assert_array_equal(matches.index3d, [70])
 
 
 def test_the_solver_recovers_a_known_pose_from_exact_pairs():

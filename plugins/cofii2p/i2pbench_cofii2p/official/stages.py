@@ -33,6 +33,7 @@ from i2pbench.api import (
     Matches,
 )
 from i2pbench.layers.peer_inputs import cell_corners, pixel_cells
+from i2pbench.layers.point_pyramid import PointPyramid
 
 from .matching import cell_rows, fine_pixels, node_rows
 from .network import CoFiI2PNetwork
@@ -102,18 +103,29 @@ class OfficialCoFiI2P(LearnedComponent, Matcher):
             return Matches.empty()
         data, image, pyramid = network_inputs(frame, kp3d, self.conf)
         try:
-            out = self.batched(data, image)
+            out = self.batched(on_device(data, self.device), image.to(self.device))
         except ValueError:  # under 4 pairs at any threshold (their loop never ends) or a patch off the map (theirs
             # asserts): the network refuses the frame, and it gets no match
             return Matches.empty()
-        patches, point_features, centres, chosen = out[4], out[5], out[6], out[7]
+        return self.pairs([t.cpu() for t in out[4:8]], cells, pyramid)
+
+    def pairs(self, test_outputs: list[torch.Tensor], cells: np.ndarray, pyramid: PointPyramid) -> Matches:
+        """the 'test' outputs (patches, point features, patch centres, chosen points) -> matches between the
+        extractors' rows: each chosen point's fine pixel (matching.fine_pixels), read by the keypoint in its cell."""
+        patches, point_features, centres, chosen = test_outputs
         xy, score = fine_pixels(patches.reshape(len(chosen), patches.shape[-2], -1), point_features.reshape(
             len(chosen), -1), centres.float(), bool(self.conf["swap_patch_axes"]))  # fmt: skip
         map_width, map_height = (side // CELL_PX for side in self.conf["crop"])
         x, y = xy.long().numpy()
         on_map = (x >= 0) & (x < map_width) & (y >= 0) & (y < map_height)
         rows2d = np.where(on_map, cell_rows(cells, map_width * map_height)[np.where(on_map, y * map_width + x, 0)], -1)
-        rows3d = pyramid.picks[-1][node_rows(pyramid.points[-1], chosen.cpu()).numpy()]
+        rows3d = pyramid.picks[-1][node_rows(pyramid.points[-1], chosen).numpy()]
         keep = rows2d >= 0
         return Matches(rows2d[keep], rows3d[keep], score.numpy()[keep].astype(np.float32),
                        radius_px=float(self.conf["radius_px"]))  # fmt: skip
+
+
+def on_device(data: dict[str, Any], device: torch.device) -> dict[str, Any]:
+    """the `pc_data_dict`'s tensors on `device` (its `lengths` stay integers)."""
+    moved = {k: [t.to(device) for t in v] for k, v in data.items() if k not in ("lengths", "feats")}
+    return {**data, **moved, "feats": data["feats"].to(device)}
