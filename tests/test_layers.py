@@ -60,7 +60,7 @@ LAYER_CODE = {
     "frame_norm": (0, "b360eba841ba"),
     "global_pointnet2": (0, "8747a5b05659"),  # BatchedStage, seeded_cloud, deep merge_conf: same outputs
     "kernels": (1, "4a6546946f55"),  # FPS sums rounded squares unfused, as the authors' PointNet++ (issue 39)
-    "kpconv": (0, "18503e4b9134"),  # KPConv of CoFiI2P's official size (issue 39)
+    "kpconv": (0, "afae9f47a5ac"),  # KPConv of CoFiI2P's official size (issue 39)
     "mlp": (0, "1e8fb86b56f9"),
     "nodes": (0, "57e284127b45"),
     "peer_inputs": (0, "0b74d4a1d908"),  # moved from the CorrI2P, DeepI2P, VP2P-Match official stages: same outputs

@@ -7,6 +7,8 @@
 - `resnet`: residual blocks with GroupNorm, the coarse-cell mask of a padded batch (CorrI2P, DeepI2P);
 - `frame_norm`, `mlp`: per-keypoint MLPs normalised over each frame's keypoints, or by LayerNorm;
 - `attention`, `nodes`: the key mask of padded attention; node pooling and per-frame means;
+- `kpconv`: rigid kernel point convolution on fixed-size neighbour lists with a shadow row, and a seeded kernel
+  disposition (CoFiI2P's KPConv-FPN);
 - `sparse`, `point_voxel`: sparse 3D convolution in plain torch computing torchsparse 2.0's function, and SPVCNN's
   point <-> voxel conversions (VP2P-Match);
 - `point_pyramid`: a KPConv point pyramid of random halvings and kNN-128 neighbours, as CoFiI2P's data preparation

@@ -23,9 +23,10 @@ SHADOW_DISTANCE = 1e6  # where the shadow support point sits: beyond every kerne
 
 
 def gather_rows(rows: torch.Tensor, index: torch.Tensor, fill: float = 0.0) -> torch.Tensor:
-    """rows [N x C] with a shadow row of `fill` appended, gathered by `index` [...] -> [... x C]."""
+    """rows [N x C] with a shadow row of `fill` appended, gathered by `index` [...] -> [... x C] (one flat
+    index_select: on the CPU faster than advanced indexing with a 2-D index)."""
     padded = torch.cat([rows, rows.new_full((1, rows.shape[1]), fill)])
-    return padded[index]
+    return padded.index_select(0, index.reshape(-1)).view(*index.shape, rows.shape[1])
 
 
 def nearest_upsample(feats: torch.Tensor, upsampling: torch.Tensor) -> torch.Tensor:

@@ -16,8 +16,9 @@ script only (docs/methods.md lists them):
 - their kernel_points.py writes the kernel disposition file it optimises into the checkout: its `__file__` is moved to
   a temporary folder, so the file goes there (the optimisation itself is theirs, seeded by --seed);
 - the loader reads files made by scripts partly unreleased (img_P2, K_P2, pc_npy_with_normal, as CorrI2P's: the
-  README points there): here tools/reference/corri2p.py's equivalents make them (0.1 m voxels with open3d normals,
-  the image without its top 50 rows, options.py `crop_original_top_rows`);
+  README points there; docs/datasets.md says what each holds): here the scan as tools/reference/corri2p.py's
+  equivalent makes it (0.1 m voxels with open3d normals), the whole RGB image and K = P2[:, :3] (data/kitti.py never
+  reads options.py's `crop_original_top_rows`);
 - the loader draws up to `num_kpt` = 64 anchors and train.py gathers exactly 64: with `--n` points the coarse level
   has n / 16 super-points, fewer of them in view, so `num_kpt` here is the number both draws can give.
 
@@ -50,7 +51,7 @@ from i2pbench_cofii2p.official.reference import NETWORK_OUTPUTS
 
 from i2pbench.testing.recipe import recipe_state
 
-IMAGE_H, IMAGE_W, TOP_ROWS, SCALE = 160, 512, 50, 0.5  # options.py Options_KITTI; kitti.py:306-320
+IMAGE_H, IMAGE_W, SCALE = 160, 512, 0.5  # options.py Options_KITTI; kitti.py:306-320
 NUM_KPT = 64  # options.py num_kpt
 SAMPLE = 8192  # largest tensor kept whole in outputs.npz
 
@@ -126,10 +127,9 @@ def frame_cloud(corri2p: types.ModuleType, frame: Path, index: int, n: int) -> t
 
 
 def frame_image(frame: Path, index: int, calib: dict) -> tuple[np.ndarray, np.ndarray]:
-    """the preprocessed image (top rows cut) scaled by 0.5 and centre-cropped (kitti.py:306-320) and its K."""
-    image = cv2.cvtColor(cv2.imread(str(frame / "image_2" / f"{index:06d}.png")), cv2.COLOR_BGR2RGB)[TOP_ROWS:]
+    """the whole RGB image scaled by 0.5 and centre-cropped (kitti.py:306-320) and its K."""
+    image = cv2.cvtColor(cv2.imread(str(frame / "image_2" / f"{index:06d}.png")), cv2.COLOR_BGR2RGB)
     K = calib["P2"][:, :3].copy()
-    K[1, 2] -= TOP_ROWS
     size = (int(round(image.shape[1] * SCALE)), int(round(image.shape[0] * SCALE)))
     image, K = cv2.resize(image, size, interpolation=cv2.INTER_LINEAR), scale_k(K, SCALE)
     dx, dy = int((image.shape[1] - IMAGE_W) / 2), int((image.shape[0] - IMAGE_H) / 2)
