@@ -54,6 +54,9 @@ def test_grid_pixels_are_the_fine_map_cells_under_the_frames_K():
     full = (points @ K.T)[:, :2] / points[:, 2:]
     np.testing.assert_allclose(full, 4 * fine + [108, 28], atol=1e-4)  # K_2 holds K in float32
     np.testing.assert_allclose(fine_coordinates(full, 1242, 375, crop), fine, atol=1e-4)
+    # the grid's own pixels map back to their cells' integer (x, y) exactly: the coordinates the authors' PnP reads
+    cols, rows = np.meshgrid(np.arange(256), np.arange(80))
+    np.testing.assert_array_equal(fine_coordinates(uv, 1242, 375, crop), np.column_stack([cols.ravel(), rows.ravel()]))
 
 
 def test_a_frame_the_cofii2p_card_built_is_taken_as_it_is():
