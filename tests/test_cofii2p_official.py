@@ -106,6 +106,23 @@ def test_the_cloud_meets_the_network_in_camera_axes_with_up_normals():
     np.testing.assert_array_equal(pyramid.points[0].numpy(), data["points"][0].numpy())
 
 
+def test_the_nuscenes_size_feeds_intensity_at_their_scale_and_the_points_themselves():
+    (row,) = default_registry().preset_rows("cofii2p-official-nuscenes")
+    conf = row["confs"]["matcher"]
+    assert (conf["crop"], conf["features"], conf["intensity_scale"]) == ((320, 160), "xyz", 255.0)
+    assert row["confs"]["extractor2d"]["crop"] == row["confs"]["solver"]["crop"] == (320, 160)
+    cloud = np.random.default_rng(4).uniform(-20, 20, (2048, 4)).astype(np.float32)
+    cloud[:, 3] = np.linspace(0, 1, 2048)
+    f = frame(320, 160, cloud, np.eye(4))  # a cofii2p-card frame: the crop, the camera-frame cloud
+    kp3d = loader_cloud(f, 2048, 0)
+    data, image, _ = network_inputs(f, kp3d, {**conf, "seed": 0})
+    assert tuple(image.shape) == (1, 3, 160, 320)
+    np.testing.assert_allclose(data["feats"][:, 0].numpy(), cloud[:, 3] * 255, rtol=1e-6)
+    np.testing.assert_array_equal(data["feats"][:, 1:].numpy(), cloud[:, :3])
+    with pytest.raises(ValueError, match="features 'rgb' is neither"):
+        network_inputs(f, kp3d, {**conf, "seed": 0, "features": "rgb"})
+
+
 def test_fine_matching_takes_the_patch_cell_of_highest_cosine_with_the_authors_axes():
     patches = torch.zeros(2, 2, 16)
     patches[0, :, 6] = torch.tensor([1.0, 0])  # point 0's best: cell 6 = row 1, column 2

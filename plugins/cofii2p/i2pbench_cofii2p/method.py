@@ -27,12 +27,33 @@ OFFICIAL = Size(
     "matching in 4 x 4 patches, solvePnPRansac; weights: i2pbench weights import cofii2p-official FILE (their release)",
 )
 
+# Options_Nuscenes (data/options.py:68-74) and data/nuscenes.py: a 160 x 320 crop of the stored image halved, feats
+# of intensity (0-255 in their files; i2pbench's frames hold it / 255) and the point itself instead of normals
+NUSCENES_CROP = {"top_rows": 0, "scale": 0.5, "crop": (320, 160)}
+OFFICIAL_NUSCENES = Size(
+    "official-nuscenes",
+    confs={
+        "extractor2d": NUSCENES_CROP,
+        "matcher": {**NUSCENES_CROP, "features": "xyz", "intensity_scale": 255.0},
+        "solver": NUSCENES_CROP,
+    },
+    stages=OFFICIAL_STAGES,
+    description="the authors' code as their nuScenes options and loader set it (160 x 320, intensity and xyz "
+    "features), for the cofii2p-nuscenes layout; weights: their nuScenes release through the same importer",
+)
+
 PRESETS = (
     MethodPreset(
         "cofii2p-official",
         (Row("official"),),
         "CoFiI2P's authors' own network (WHU-USI3DV/CoFiI2P); untrained unless given --weights from "
         "`i2pbench weights import cofii2p-official`",
+    ),
+    MethodPreset(
+        "cofii2p-official-nuscenes",
+        (Row("official-nuscenes"),),
+        "CoFiI2P's authors' own network at their nuScenes settings (--dataset cofii2p-nuscenes --protocol cofii2p); "
+        "untrained unless given --weights from `i2pbench weights import cofii2p-official`",
     ),
 )
 
@@ -42,7 +63,7 @@ def cofii2p() -> Method:
     return Method(
         "cofii2p",
         dict(OFFICIAL_STAGES),
-        (OFFICIAL,),
+        (OFFICIAL, OFFICIAL_NUSCENES),
         PRESETS,
         (),
         "the loader's fine-map cells and 20,480 points, ResNet-34 + KPConv-FPN, coarse transformer matching "

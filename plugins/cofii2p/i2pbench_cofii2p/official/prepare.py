@@ -123,11 +123,14 @@ def up_normals(frame: Frame, pc: np.ndarray) -> np.ndarray:
     return np.asarray(cloud.normals, np.float32)[nearest]
 
 
-def point_features(frame: Frame, kp3d: Keypoints3D, pc: np.ndarray, features: str) -> torch.Tensor:
+def point_features(frame: Frame, kp3d: Keypoints3D, pc: np.ndarray, conf: Mapping[str, Any]) -> torch.Tensor:
     """`feats` [N x 4]: intensity and normals (data/kitti.py:293) or, on nuScenes, intensity and the point itself
-    (data/nuscenes.py:216)."""
-    extra = up_normals(frame, pc) if features == "normals" else pc
-    return torch.from_numpy(np.column_stack([kp3d.reflectance, extra]).astype(np.float32))
+    (data/nuscenes.py:216); the intensity scaled by `intensity_scale`."""
+    if conf["features"] not in ("normals", "xyz"):
+        raise ValueError(f"cofii2p-official: features {conf['features']!r} is neither 'normals' nor 'xyz'")
+    extra = up_normals(frame, pc) if conf["features"] == "normals" else pc
+    intensity = kp3d.reflectance * np.float32(conf.get("intensity_scale", 1.0))
+    return torch.from_numpy(np.column_stack([intensity, extra]).astype(np.float32))
 
 
 def network_inputs(
@@ -141,7 +144,7 @@ def network_inputs(
     pc = to_network(frame, kp3d.xyz)
     pyramid = point_pyramid(pc, rng)
     pyramid = dataclasses.replace(pyramid, picks=[rows[p] for p in pyramid.picks])
-    data = pyramid.as_inputs(point_features(frame, kp3d, pc, conf["features"]))
+    data = pyramid.as_inputs(point_features(frame, kp3d, pc, conf))
     width, height = frame.image_size
     image = image_input(frame.image, loader_crop(width, height, conf))[None]
     return data, image, pyramid

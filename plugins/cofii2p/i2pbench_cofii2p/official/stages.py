@@ -82,6 +82,7 @@ class OfficialCoFiI2P(LearnedComponent, Matcher):
     default_conf: ClassVar[dict[str, Any]] = {
         "seed": 0,  # the pyramid's random halvings, with the frame's seed
         "features": "normals",  # point features beside intensity: "normals" (KITTI) or "xyz" (nuScenes)
+        "intensity_scale": 1.0,  # the frame's reflectance times this: 255 for their nuScenes files' 0-255
         "swap_patch_axes": True,  # eval_all.py:104-105 (matching.py)
         "radius_px": 4.0,  # a pair's tolerance: one fine-map cell of a full-size KITTI image
         **CROP,
