@@ -125,7 +125,7 @@ def up_normals(frame: Frame, pc: np.ndarray) -> np.ndarray:
 
 def point_features(frame: Frame, kp3d: Keypoints3D, pc: np.ndarray, conf: Mapping[str, Any]) -> torch.Tensor:
     """`feats` [N x 4]: intensity and normals (data/kitti.py:293) or, on nuScenes, intensity and the point itself
-    (data/nuscenes.py:216); the intensity scaled by `intensity_scale`."""
+    (data/nuscenes.py:213); the intensity scaled by `intensity_scale`."""
     if conf["features"] not in ("normals", "xyz"):
         raise ValueError(f"cofii2p-official: features {conf['features']!r} is neither 'normals' nor 'xyz'")
     extra = up_normals(frame, pc) if conf["features"] == "normals" else pc
