@@ -1,7 +1,7 @@
 """CoFiI2P's official size around the authors' network (whose tensors tests/test_cofii2p_reference.py proves): the
 loader's preparation, the fine-map geometry, eval_all.py's fine matching and solvePnPRansac, the size's declaration,
-untrained frames end to end (default card and the cofii2p card), and the authors' layout imported through the command
-and run by the preset."""
+an untrained KITTI frame end to end under the cofii2p card, and the authors' layout imported through the command and
+run by the preset under the default card."""
 
 from __future__ import annotations
 
@@ -198,12 +198,11 @@ def test_the_official_size_runs_the_authors_stages():
     assert row["solver"] == "cofii2p-official-pnp"
 
 
-@pytest.mark.parametrize("protocol", ["edgeregnet", "cofii2p"])
-def test_the_preset_runs_a_kitti_frame_untrained_and_says_so(shared_data, tmp_path, protocol):
+def test_the_preset_runs_a_kitti_frame_untrained_under_the_cofii2p_card_and_says_so(shared_data, tmp_path):
     torch.set_num_threads(1)
     runs = tmp_path / "runs"
     data = ["--dataset", "kitti", "--data-root", str(shared_data / "kitti_odometry"), "--split", "all", "--frames", "1"]
-    small = ["--conf", "extractor3d.max_keypoints=2048", "--threads", "1", "--protocol", protocol]  # fewer points
+    small = ["--conf", "extractor3d.max_keypoints=2048", "--threads", "1", "--protocol", "cofii2p"]  # fewer points
     assert main(["run", "--preset", "cofii2p-official", *data, *small, "--runs-dir", str(runs), "--quiet"]) == 0
     board = leaderboard.read(next((runs / "leaderboards").glob("*.csv")))
     assert len(board) == 1 and board.iloc[0]["weights"] == "untrained"
@@ -211,6 +210,7 @@ def test_the_preset_runs_a_kitti_frame_untrained_and_says_so(shared_data, tmp_pa
 
 
 def test_the_command_imports_authors_weights_that_the_preset_then_runs(shared_data, tmp_path):
+    """under the default card: the whole image and scan, prepared by the stages."""
     reference = Path(__file__).parent / "data" / "reference" / "cofii2p"
     state, _ = recipe_state(json.loads((reference / "state_dict_shapes.json").read_text()), "preset")
     with np.load(reference / "inputs.npz") as inputs:
