@@ -5,6 +5,7 @@ run by the preset under the default card."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from types import SimpleNamespace
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 from i2pbench_cofii2p.official.matching import cell_rows, fine_pixels, node_rows
-from i2pbench_cofii2p.official.prepare import loader_cloud, loader_crop, loader_draw, network_axes, network_inputs
+from i2pbench_cofii2p.official.prepare import CROP, loader_cloud, loader_crop, loader_draw, network_axes, network_inputs
 from i2pbench_cofii2p.official.solver import OfficialPnP, fine_camera, fine_coordinates
 from i2pbench_cofii2p.official.stages import OfficialCoFiI2P, OfficialGrid, fine_cells, grid_pixels
 
@@ -225,3 +226,54 @@ def test_the_command_imports_authors_weights_that_the_preset_then_runs(shared_da
     assert main(["run", "--preset", "cofii2p-official", *data, *small, "--runs-dir", str(runs), "--quiet"]) == 0
     board = leaderboard.read(next((runs / "leaderboards").glob("*.csv")))
     assert board.iloc[0]["weights"].startswith("W@")  # the imported file, not "untrained"
+
+
+def test_inference_on_the_networks_outputs_is_eval_alls_arithmetic_and_call(shared_data):
+    """the reference set's frame (prepared by the authors' loader code) through our network's 'test' mode, then
+    eval_all.py:99-107 written out here beside the official matcher and solver: the same pixels, points and call."""
+    import cv2
+    from i2pbench_cofii2p.official.importer import split
+    from i2pbench_cofii2p.official.network import CoFiI2PNetwork
+    from i2pbench_cofii2p.official.reference import image_tensor, pyramid
+
+    reference = Path(__file__).parent / "data" / "reference" / "cofii2p"
+    state, _ = recipe_state(json.loads((reference / "state_dict_shapes.json").read_text()), "")
+    with np.load(reference / "inputs.npz") as npz:
+        inputs = dict(npz)
+    state |= {k: torch.from_numpy(v) for k, v in inputs.items() if k.endswith("kernel_points")}
+    net = CoFiI2PNetwork().eval()
+    net.load_state_dict({k.removeprefix("net."): v for k, v in split(state)[0].items()})
+    data = pyramid(inputs)
+    with torch.no_grad():
+        out = net(data, image_tensor(inputs["image"]), None, None, None, "test")
+    patches, point_features, centres, chosen = out[4:8]
+    # eval_all.py: cosine similarity of each patch cell with the point's feature, argmax i, x += i // 4, y += i % 4
+    similarity = torch.cosine_similarity(patches.unsqueeze(-1), point_features.unsqueeze(-1).unsqueeze(-2), dim=1)
+    best = similarity.squeeze(-1).argmax(dim=1)
+    theirs_xy = centres - 2
+    theirs_xy[0] += best // 4
+    theirs_xy[1] += best % 4
+    # ours: the frame as the card gives it (the loader's moved cloud, T_init = I) with sequence 00's whole-image K
+    calib = (shared_data / "kitti_odometry" / "sequences" / "00" / "calib.txt").read_text().splitlines()
+    K00 = np.array([float(v) for v in calib[2].split()[1:]]).reshape(3, 4)[:, :3]
+    np.testing.assert_allclose(fine_camera(K00, 1242, 375, CROP), inputs["K"], rtol=1e-6)  # their loader's K_2
+    points = np.column_stack([inputs["points_0"], np.zeros(len(inputs["points_0"]))]).astype(np.float32)
+    f = dataclasses.replace(frame(1242, 375, points, np.eye(4)), K=K00)
+    levels = PointPyramid(data["points"], [], [], [], [np.arange(len(data["points"][-1]))])
+    stage = SimpleNamespace(conf=dict(OfficialCoFiI2P.default_conf))
+    matches = OfficialCoFiI2P.pairs(stage, [patches, point_features, centres, chosen], np.arange(80 * 256), levels)
+    np.testing.assert_array_equal(matches.index2d, (theirs_xy[1] * 256 + theirs_xy[0]).long().numpy())
+    rows = node_rows(data["points"][0], chosen).numpy()  # the chosen super-points' rows of the cloud
+    kp2d, kp3d = Keypoints2D(grid_pixels(1242, 375)), Keypoints3D.from_index(f, rows)
+    pairs = Matches(matches.index2d, np.arange(len(rows)), matches.score)
+    # their call at OpenCV's 8 px, and at 100 px, where this untrained network's few pairs give a pose
+    for threshold in (8.0, 100.0):
+        cv2.setRNGSeed(0)
+        ok, rvec, tvec, _ = cv2.solvePnPRansac(cameraMatrix=inputs["K"], imagePoints=theirs_xy.T.numpy(),
+                                               objectPoints=chosen.numpy(), iterationsCount=10000, distCoeffs=None,
+                                               reprojectionError=threshold)  # fmt: skip
+        pose = OfficialPnP({"reprojection_error_px": threshold})(f, kp2d, kp3d, pairs)
+        assert pose.ok == ok, threshold
+    assert ok
+    np.testing.assert_allclose(pose.T[:3, :3], cv2.Rodrigues(rvec)[0], atol=1e-4)
+    np.testing.assert_allclose(pose.T[:3, 3], tvec.ravel(), atol=1e-3)
