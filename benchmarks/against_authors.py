@@ -14,6 +14,7 @@ Prints per stage the medians and ours / authors'.
     .venv/bin/python benchmarks/against_authors.py --method deepi2p --checkout /work/peers/DeepI2P [--points 20480]
     /tmp/tsvenv/bin/python benchmarks/against_authors.py --method vp2p-match --checkout /work/peers/VP2P-Match \
         [--points 40960]   # an interpreter with torchsparse 2.0 (tools/reference/vp2p.py), this repo's plugins on it
+    .venv/bin/python benchmarks/against_authors.py --method cofii2p --checkout /work/peers/CoFiI2P [--points 20480]
 
 A method is one entry of METHODS: a function (checkout, args) -> Pair, the stages both sides split alike, in order.
 CorrI2P and DeepI2P are built by their reference tools (tools/reference/*.py, with those tools' CPU stand-in of the
@@ -23,6 +24,9 @@ VP2P-Match is built as tools/reference/vp2p.py builds it (torchsparse 2.0 with t
 interpreter; pointnet2_ops' farthest point sampling and ball query as plain-torch loops, slower than their CUDA
 kernels: the authors' `points` stage bounds their code from above) and split as image, point and voxel branches and
 the rest (fusion and heads).
+CoFiI2P is built as tools/reference/cofii2p.py builds it (einops installed, their open3d.ml KNNSearch stood in for by
+their file's own pure-torch knn) and split as the data preparation's point pyramid (their precompute beside
+i2pbench.layers.point_pyramid, checked equal), image and point encoders, and the rest of the 'test' forward.
 """
 
 from __future__ import annotations
@@ -500,11 +504,101 @@ def vp2p_match(checkout: Path, args: argparse.Namespace) -> Pair:
     return Pair(split(theirs, inputs), split(mine, inputs), check)
 
 
+# ---- CoFiI2P: model/network.py CoFiI2P, its data preparation (the KPConv pyramid) timed beside it
+
+
+def recorded_outputs(tensors: dict[str, torch.Tensor], meta: dict) -> dict[str, np.ndarray]:
+    """tensors as a reference set keeps them: those it sampled as every step-th flat value."""
+    out = {}
+    for name, tensor in tensors.items():
+        array = tensor.numpy()
+        how = meta.get("sampled", {}).get(name)
+        out[name] = array.reshape(-1)[:: how["step"]] if how and list(array.shape) == how["shape"] else array
+    return out
+
+
+def pyramid_errors(theirs: dict, ours: dict) -> dict[str, float]:
+    """ours against theirs: 0 where the two pyramids' points and neighbour lists are equal, inf where not."""
+    keys = ("points", "neighbors", "subsampling", "upsampling")
+    same = all(torch.equal(a, b.to(a.dtype)) for k in keys for a, b in zip(ours[k], theirs[k], strict=True))
+    return {"ours pyramid": 0.0 if same else float("inf")}
+
+
+def cofii2p(checkout: Path, args: argparse.Namespace) -> Pair:
+    """CoFiI2P's official size against the authors' CoFiI2P (model/network.py) built by tools/reference/cofii2p.py
+    (their open3d.ml KNNSearch stood in for by their own knn, .cuda a no-op), the reference set's recipe weights and
+    kernel dispositions; split as the pyramid (preprocess_data.py's halvings and kNN-128, theirs beside
+    i2pbench.layers.point_pyramid), image and point encoders, and the rest of the forward in 'test' mode (transformer,
+    heads, selection, patches); timed on the set's frame prepared by the tool at `--points` (0: their 20,480)."""
+    import atexit
+    import shutil
+    import tempfile
+
+    from i2pbench_cofii2p.official.importer import split
+    from i2pbench_cofii2p.official.network import CoFiI2PNetwork
+    from i2pbench_cofii2p.official.reference import NETWORK_OUTPUTS, image_tensor, pyramid
+
+    from i2pbench.layers.point_pyramid import point_pyramid
+    from i2pbench.testing.recipe import folder_state
+
+    require(checkout, "model/network.py", "CoFiI2P")
+    tool, folder = reference_tool("cofii2p"), Path(args.reference or ROOT / "tests/data/reference/cofii2p")
+    meta, recorded, outputs = reference_set(folder)
+    learned, digest = folder_state(folder)
+    if digest != (folder / "weights.sha256").read_text().split()[0]:
+        raise SystemExit(f"{folder}: the regenerated weights do not match weights.sha256")
+    state = learned | {k: torch.from_numpy(v) for k, v in recorded.items() if k.endswith("kernel_points")}
+    scratch = tempfile.mkdtemp(prefix="cofii2p-kernels-")  # their kernel_points.py writes its file there
+    atexit.register(shutil.rmtree, scratch, True)
+    authors = tool.import_authors(checkout, Path(scratch))
+    with mock.patch("builtins.print"):
+        theirs = authors["network"].CoFiI2P(authors["options"].Options_KITTI())
+    theirs.load_state_dict(state)
+    mine = CoFiI2PNetwork()
+    mine.load_state_dict({k.removeprefix("net."): v for k, v in split(state)[0].items()})
+    nets = {"authors": theirs.eval(), "ours": mine.eval()}
+
+    def forward_split(net: torch.nn.Module, data: dict, image: torch.Tensor) -> Stages:
+        test = (data, image, None, None, None, "test")
+        return encoder_split(net, ("img_encoder", "pc_encoder"), (image,), (data,), test)
+
+    def check() -> dict[str, float]:
+        data, image = pyramid(recorded), image_tensor(recorded["image"])
+        errors = {}
+        with torch.inference_mode():
+            for side, net in nets.items():
+                got = recorded_outputs(dict(zip(NETWORK_OUTPUTS, net(*(data, image, None, None, None, "test")),
+                                                strict=True)), meta)  # fmt: skip
+                for name in ("img_feature_norm", "pc_feature_norm", "coarse_pc_score", "fine_img_feature_patch"):
+                    errors[f"{side} {name}"] = relative(torch.from_numpy(got[name]), outputs[name])
+        return errors | pyramid_errors(theirs_pyramid(), ours_pyramid())
+
+    n = args.points or authors["options"].Options_KITTI().num_pc
+    np.random.seed(meta["seed"])  # the tool's own seeding, as its main() does
+    random.seed(meta["seed"])
+    torch.manual_seed(meta["seed"])
+    data, inputs = tool.prepare(authors, DATA / meta["frame"], meta["frame_index"], n)
+    cloud = data["points"][0].numpy()
+
+    def theirs_pyramid() -> dict:
+        np.random.seed(meta["seed"])
+        return authors["preprocess"].precompute_point_cloud_stack_mode(cloud.T, None, None, len(cloud), 5)
+
+    def ours_pyramid() -> dict:
+        return point_pyramid(cloud, np.random.RandomState(meta["seed"])).as_inputs(data["feats"])
+
+    image = image_tensor(inputs["image"])
+    sides = {side: {"pyramid": build} | forward_split(net, data, image)
+             for (side, net), build in zip(nets.items(), (theirs_pyramid, ours_pyramid), strict=True)}  # fmt: skip
+    return Pair(sides["authors"], sides["ours"], check)
+
+
 METHODS: dict[str, Callable[[Path, argparse.Namespace], Pair]] = {
     "edgeregnet": edgeregnet,
     "corri2p": corri2p,
     "deepi2p": deepi2p,
     "vp2p-match": vp2p_match,
+    "cofii2p": cofii2p,
 }
 
 
@@ -516,7 +610,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--keypoints", type=int, default=3000, help="EdgeRegNet, a side; 0: the reference set's own")
-    parser.add_argument("--points", type=int, default=0, help="CorrI2P, DeepI2P, VP2P-Match: cloud; 0: the authors'")
+    parser.add_argument("--points", type=int, default=0, help="CorrI2P, DeepI2P, VP2P-Match, CoFiI2P: cloud; 0: the "
+                        "authors'")  # fmt: skip
     parser.add_argument("--json", type=Path, help="write every frame's times and load here")
     args = parser.parse_args(argv)
     print(f"torch {torch.__version__}; load {load_average()}; building {args.method} from {args.checkout}", flush=True)

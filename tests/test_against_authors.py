@@ -51,13 +51,14 @@ def test_a_folder_without_their_model_is_refused(tmp_path):
 
 
 def test_the_table_holds_every_official_method_with_the_authors_code_at_hand():
-    assert set(against_authors.METHODS) == {"edgeregnet", "corri2p", "deepi2p", "vp2p-match"}
+    assert set(against_authors.METHODS) == {"edgeregnet", "corri2p", "deepi2p", "vp2p-match", "cofii2p"}
 
 
 NETWORKS = [
     ("corri2p", "network.py"),
     ("deepi2p", "models/networks_united.py"),
     ("vp2p-match", "models/triplet_network.py"),
+    ("cofii2p", "model/network.py"),
 ]
 
 
@@ -117,6 +118,7 @@ TINY_RUNS = {  # points drawn, stages timed
     "corri2p": (2048, ["image", "points", "exchange"]),
     "deepi2p": (1024, ["image", "points", "exchange"]),
     "vp2p-match": (1024, ["image", "points", "voxels", "fusion"]),
+    "cofii2p": (2048, ["pyramid", "image", "points", "exchange"]),
 }
 
 
@@ -126,6 +128,8 @@ def test_a_tiny_run_checks_both_sides_against_the_reference_set_then_times_them(
     checkout = str(peer_checkout(method))
     if method == "vp2p-match" and importlib.util.find_spec("torchsparse") is None:
         pytest.skip(f"torchsparse is not importable in {sys.executable}: the authors' VP2P-Match code needs it")
+    if method == "cofii2p" and importlib.util.find_spec("einops") is None:
+        pytest.skip(f"einops is not importable in {sys.executable}: the authors' CoFiI2P transformer needs it")
     sample("kitti_odometry")  # the timed frame is the reference set's, prepared again at --points
     out = tmp_path / "run.json"
     argv = ["--method", method, "--checkout", checkout, "--points", str(points), "--threads", "1", "--repeat", "1"]

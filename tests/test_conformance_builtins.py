@@ -42,6 +42,11 @@ SMALL_CONFS = {
     ("extractor2d", "vp2p-match-official-grid"): {"crop": (64, 32)},
     ("extractor3d", "vp2p-match-official-points"): {"max_keypoints": 1024},
     ("matcher", "vp2p-match-official"): {"crop": (64, 32)},
+    # CoFiI2P's likewise: a 64 x 32 crop, 2,048 points (the fewest whose coarsest level holds kNN-128)
+    ("extractor2d", "cofii2p-official-grid"): {"crop": (64, 32), "top_rows": 0},
+    ("extractor3d", "cofii2p-official-points"): {"max_keypoints": 2048},
+    ("matcher", "cofii2p-official"): {"crop": (64, 32), "top_rows": 0},
+    ("solver", "cofii2p-official-pnp"): {"crop": (64, 32), "top_rows": 0},
 }
 
 # components whose weights come from an optional extra: their conformance is checked only where it is installed

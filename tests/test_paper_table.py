@@ -66,6 +66,7 @@ def test_the_paper_table_lists_the_seed_papers_methods_in_table_1_order():
         "corri2p",
         "corri2p (corri2p-official)",
         "vp2p-match (vp2p-match-official)",
+        "cofii2p (cofii2p-official)",
         "edgeregnet (default)",
         "classic-oracle",
     ]

@@ -12,6 +12,8 @@
   disposition (CoFiI2P's KPConv-FPN);
 - `sparse`, `point_voxel`: sparse 3D convolution in plain torch computing torchsparse 2.0's function, and SPVCNN's
   point <-> voxel conversions (VP2P-Match);
+- `point_pyramid`: a KPConv point pyramid of random halvings and kNN-128 neighbours, as CoFiI2P's data preparation
+  builds it;
 - `peer_inputs`: the authors' KITTI inputs for the official sizes of CorrI2P, DeepI2P and VP2P-Match (image crop, cells
   as pixels, 0.1 m voxels with normals, seeded draws and node sampling, the extractors and the matchers' tensors).
 

@@ -4,7 +4,8 @@ The rows are the methods' own presets, named rather than copied (`register_prese
 entry), so a row runs exactly what `--preset deepi2p` or `--preset corri2p` runs, with the weights `--weights auto`
 picks for it (or untrained, which the row then says). VP2P-Match, the paper's fourth peer, runs as its authors'
 network only (no weights are trained or shipped here: untrained unless given imported ones, which its weights column
-says). The oracle row, which the paper lacks, is the ceiling of the protocol.
+says), and so does CoFiI2P, which Table I lacks (a later peer, RA-L 2024). The oracle row, which the paper lacks, is
+the ceiling of the protocol.
 `i2pbench table` joins one such leaderboard per dataset into the paper's layout (KITTI and nuScenes columns).
 """
 
@@ -13,9 +14,10 @@ from __future__ import annotations
 from i2pbench.api import hookimpl
 
 # Table I's rows: DeepI2P's grid classification + PnP, its frustum classification + inverse projection in 3D and 2D,
-# CorrI2P, VP2P-Match, then EdgeRegNet ("Ours"); every method at the size whose weights are trained here, and beside
-# DeepI2P's and CorrI2P's CPU look-alikes their authors' own networks, with VP2P-Match's authors' network (`official`:
-# untrained here unless given imported weights, as their rows' weights column says)
+# CorrI2P, VP2P-Match, CoFiI2P (not in the paper), then EdgeRegNet ("Ours"); every method at the size whose weights
+# are trained here, and beside DeepI2P's and CorrI2P's CPU look-alikes their authors' own networks, with VP2P-Match's
+# and CoFiI2P's authors' networks (`official`: untrained here unless given imported weights, as their rows' weights
+# column says)
 TABLE_1 = (
     "deepi2p",
     "deepi2p-frustum-3d",
@@ -24,6 +26,7 @@ TABLE_1 = (
     "corri2p",
     "corri2p-official",
     "vp2p-match-official",
+    "cofii2p-official",
     "default",
     "classic-oracle",
 )
@@ -36,9 +39,9 @@ def register_presets(register) -> None:
     register(
         "paper-table-1",
         list(TABLE_1),
-        "the seed paper's Table I: DeepI2P (grid + PnP, frustum 3D, frustum 2D), CorrI2P, VP2P-Match, EdgeRegNet, the "
-        "oracle ceiling; each method's trainable size, and DeepI2P's, CorrI2P's and VP2P-Match's authors' networks "
-        "(untrained here unless imported)",
+        "the seed paper's Table I: DeepI2P (grid + PnP, frustum 3D, frustum 2D), CorrI2P, VP2P-Match, CoFiI2P, "
+        "EdgeRegNet, the oracle ceiling; each method's trainable size, and DeepI2P's, CorrI2P's, VP2P-Match's and "
+        "CoFiI2P's authors' networks (untrained here unless imported)",
     )
     register(
         "paper-table-1-paper-size",
