@@ -9,6 +9,7 @@
 - `attention`, `nodes`: the key mask of padded attention; node pooling and per-frame means;
 - `sparse`, `point_voxel`: sparse 3D convolution in plain torch computing torchsparse 2.0's function, and SPVCNN's
   point <-> voxel conversions (VP2P-Match);
+- `epropnp`: EPro-PnP's Monte-Carlo pose loss (LM solver, AMIS proposals) for 6-DoF poses (VP2P-Match's training);
 - `peer_inputs`: the authors' KITTI inputs for the official sizes of CorrI2P, DeepI2P and VP2P-Match (image crop, cells
   as pixels, 0.1 m voxels with normals, seeded draws and node sampling, the extractors and the matchers' tensors).
 
