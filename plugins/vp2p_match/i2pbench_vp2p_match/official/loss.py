@@ -132,16 +132,19 @@ def soft_correspondences(
 def pose_loss(
     out: Mapping[str, torch.Tensor], sup: Mapping[str, torch.Tensor], pc: torch.Tensor, conf: Mapping[str, Any]
 ) -> torch.Tensor:
-    """EPro-PnP's KL loss of one frame's true pose `sup["pose"]` under its soft correspondences (in cells)."""
-    x3d, w2d = soft_correspondences(out, sup, pc, float(conf["pose_temperature"]))
-    x2d = sup["img_xy"]
-    delta = adaptive_delta(x2d[None], w2d[None], float(conf["pose_relative_delta"]))
-    c = Correspondences(x3d[None], x2d[None], w2d[None], sup["K4"][None], delta)
-    generator = torch.Generator(device="cpu").manual_seed(int(sup["seed"]))
-    return monte_carlo_pose_loss(
-        c, sup["pose"][None], generator, int(conf["pose_samples"]), int(conf["pose_rounds"]),
-        int(conf["pose_lm_iterations"]),
-    )["loss"][0]  # fmt: skip
+    """EPro-PnP's KL loss of one frame's true pose `sup["pose"]` under its soft correspondences (in cells), in
+    float32 even under `--amp bf16` (the solver's linear algebra needs it)."""
+    with torch.autocast(pc.device.type, enabled=False):
+        x3d, w2d = soft_correspondences({k: v.float() for k, v in out.items()}, sup, pc.float(),
+                                        float(conf["pose_temperature"]))  # fmt: skip
+        x2d = sup["img_xy"].float()
+        delta = adaptive_delta(x2d[None], w2d[None], float(conf["pose_relative_delta"]))
+        c = Correspondences(x3d[None], x2d[None], w2d[None], sup["K4"][None].float(), delta)
+        generator = torch.Generator(device="cpu").manual_seed(int(sup["seed"]))
+        return monte_carlo_pose_loss(
+            c, sup["pose"][None].float(), generator, int(conf["pose_samples"]), int(conf["pose_rounds"]),
+            int(conf["pose_lm_iterations"]),
+        )["loss"][0]  # fmt: skip
 
 
 def frame_loss(
