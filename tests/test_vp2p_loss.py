@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 import torch
 from conftest import sample
-from i2pbench_vp2p_match.official.loss import adapt_loss, anchors, cell_camera, det_loss
+from i2pbench_vp2p_match.official.loss import adapt_loss, anchors, cell_camera, det_loss, frame_loss
 from i2pbench_vp2p_match.prepare import grid_pixels
-from i2pbench_vp2p_match.stages import CROP
+from i2pbench_vp2p_match.stages import CROP, SUP, unpadded
 
 from i2pbench.api import Features
 from i2pbench.boards import leaderboard
@@ -25,6 +25,7 @@ from i2pbench.grid import expand
 from i2pbench.pipeline import Pipeline
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
+from i2pbench.training.batching import collate
 from i2pbench.training.trainable import check_trainable
 from i2pbench.weights import load_checkpoint
 
@@ -140,11 +141,17 @@ def small_stage():
     frame = Protocol(seed=1).apply(dataset.load(dataset.frame_ids()[0]))
     stages = pipeline.stages
     matcher = stages["matcher"].train()
-    return pipeline, matcher, matcher.one(frame, stages["extractor2d"](frame), stages["extractor3d"](frame))
+    return pipeline, matcher, matcher.one(frame, stages["extractor2d"](frame), stages["extractor3d"](frame)), dataset
+
+
+def prepared(pipeline, dataset, index: int) -> dict[str, torch.Tensor]:
+    frame = Protocol(seed=index).apply(dataset.load(dataset.frame_ids()[index]))
+    stages = pipeline.stages
+    return stages["matcher"].prepare(frame, stages["extractor2d"](frame), stages["extractor3d"](frame))
 
 
 def test_the_official_size_trains_and_its_loss_falls_on_one_frame(small_stage):
-    pipeline, matcher, inputs = small_stage
+    pipeline, matcher, inputs, _ = small_stage
     assert check_trainable(pipeline) is matcher
     assert int(inputs["sup_num_pc_kpt_idx"][0]) >= 20  # in-view anchors of the frame under its transform
     optimizer = torch.optim.Adam(matcher.parameters(), lr=1e-3)
@@ -157,6 +164,31 @@ def test_the_official_size_trains_and_its_loss_falls_on_one_frame(small_stage):
         optimizer.step()
         losses.append(loss.item())
     assert losses[-1] < 0.5 * losses[0]
+
+
+def test_a_padded_batch_of_two_frames_gives_each_frame_its_own_anchors(small_stage):
+    pipeline, matcher, _, dataset = small_stage
+    frames = [prepared(pipeline, dataset, i) for i in (1, 2)]
+    few = frames[0]  # as a frame with fewer points in view: its first 100 anchors, padded in the batch
+    for key in ("sup_pc_kpt_idx", "sup_img_kpt_idx", "sup_img_xy"):
+        few[key] = few[key][:100]
+    few["sup_correspondence"], few["sup_num_pc_kpt_idx"] = few["sup_correspondence"][:100, :100], torch.tensor(100)
+    batch = collate(frames)
+    padded = {k.removeprefix(SUP): v for k, v in batch.items() if k.startswith(SUP)}
+    own = [unpadded({k.removeprefix(SUP): v[None] for k, v in f.items() if k.startswith(SUP)}, 0) for f in frames]
+    for b, anchors_b in enumerate(own):
+        cut = unpadded(padded, b)
+        assert cut.keys() == anchors_b.keys() and all(torch.equal(cut[k], anchors_b[k]) for k in cut)
+    matcher.eval()  # BatchNorm from its running statistics: the two forward passes below agree
+    try:
+        with torch.no_grad():
+            together, terms = matcher.batch_loss(batch, Features(None, None), None, None)
+            out = matcher.batched(batch)
+    finally:
+        matcher.train()
+    each = [frame_loss({k: v[b] for k, v in out.items()}, own[b], frames[b]["pc"], matcher.conf) for b in (0, 1)]
+    assert together.item() == pytest.approx((each[0]["loss"].item() + each[1]["loss"].item()) / 2, rel=1e-6)
+    assert terms["anchors"] == (100 + int(frames[1]["sup_num_pc_kpt_idx"])) / 2
 
 
 def test_train_writes_a_checkpoint_that_run_names(shared_data, tmp_path):
