@@ -12,7 +12,9 @@ by adaptive multiple importance sampling (AMIS) around the Levenberg-Marquardt o
 - the gradient reaches the correspondences through cost(y_gt) and cost(samples); the samples and proposals are
   constants, as upstream.
 
-Poses are [..., 7]: translation (3) and a unit quaternion (w, x, y, z) rotating points into the camera. Kept
+Poses are [..., 7]: translation (3) and a unit quaternion (w, x, y, z) rotating points into the camera. Give it
+float64: on near-degenerate correspondences float32's solver and proposals turn 1e-7 input noise into estimates
+several times apart (docs/methods.md, VP2P-Match's training). Kept
 difference: upstream can start the solver from a random-sample LM (`RSLMSolver`) and keep whichever of that and the
 true pose costs less; here the solver starts from the pose it is given (the true pose in training).
 """
