@@ -18,7 +18,7 @@ from i2pbench_vp2p_match.official.loss import adapt_loss, anchors, cell_camera, 
 from i2pbench_vp2p_match.prepare import grid_pixels
 from i2pbench_vp2p_match.stages import CROP, SUP, unpadded
 
-from i2pbench.api import Features
+from i2pbench.api import Features, StageError
 from i2pbench.boards import leaderboard
 from i2pbench.cli import main
 from i2pbench.grid import expand
@@ -189,6 +189,13 @@ def test_a_padded_batch_of_two_frames_gives_each_frame_its_own_anchors(small_sta
     each = [frame_loss({k: v[b] for k, v in out.items()}, own[b], frames[b]["pc"], matcher.conf) for b in (0, 1)]
     assert together.item() == pytest.approx((each[0]["loss"].item() + each[1]["loss"].item()) / 2, rel=1e-6)
     assert terms["anchors"] == (100 + int(frames[1]["sup_num_pc_kpt_idx"])) / 2
+
+
+def test_a_frame_without_its_true_pose_is_refused_for_training(small_stage):
+    _, matcher, inputs, _ = small_stage
+    network_only = {k: v for k, v in inputs.items() if not k.startswith(SUP)}
+    with pytest.raises(StageError, match="true pose"):
+        matcher.batch_loss(network_only, Features(None, None), None, None)
 
 
 def test_train_writes_a_checkpoint_that_run_names(shared_data, tmp_path):

@@ -39,6 +39,7 @@ from i2pbench.api import (
     Keypoints3D,
     Matcher,
     Matches,
+    StageError,
 )
 from i2pbench.layers.peer_inputs import (
     LIDAR_TO_CAMERA_AXES,
@@ -118,13 +119,13 @@ def supervision(frame: Frame, pc: torch.Tensor, conf: Mapping[str, Any]) -> dict
 
 
 def unpadded(sup: Mapping[str, torch.Tensor], b: int) -> dict[str, torch.Tensor]:
-    """frame b's anchors out of a collated batch (index lists cut to their counts, poses and K in float32)."""
+    """frame b's anchors out of a collated batch (index lists cut to their counts)."""
     n_in, n_out, n_img = (int(sup[f"num_{k}"][b]) for k in ("pc_kpt_idx", "pc_outline_idx", "img_outline_idx"))
     return {
         "pc_kpt_idx": sup["pc_kpt_idx"][b, :n_in], "img_kpt_idx": sup["img_kpt_idx"][b, :n_in],
         "img_xy": sup["img_xy"][b, :n_in], "correspondence": sup["correspondence"][b, :n_in, :n_in],
         "pc_outline_idx": sup["pc_outline_idx"][b, :n_out], "img_outline_idx": sup["img_outline_idx"][b, :n_img],
-        "K4": sup["K4"][b].float(), "pose": sup["pose"][b].float(), "seed": sup["seed"][b],
+        "K4": sup["K4"][b], "pose": sup["pose"][b], "seed": sup["seed"][b],
     }  # fmt: skip
 
 
@@ -169,8 +170,10 @@ class OfficialVP2PMatch(BatchedStage, Matcher):
         self, inputs: dict[str, Any], features: Features, mask2d: torch.Tensor, mask3d: torch.Tensor
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """official/loss.py's total, the mean over a batch of `prepare`d frames (each with its own anchors)."""
-        out = self.batched(inputs)
         sup = {k.removeprefix(SUP): v for k, v in inputs.items() if k.startswith(SUP)}
+        if not sup:
+            raise StageError(self.label, "trains on frames with their true pose (T_gt): prepare draws anchors from it")
+        out = self.batched(inputs)
         terms = [
             frame_loss({k: v[b] for k, v in out.items()}, unpadded(sup, b), inputs["pc"][b], self.conf)
             for b in range(len(inputs["pc"]))
