@@ -26,8 +26,9 @@ from i2pbench.pipeline import Pipeline
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
 from i2pbench.training.batching import collate
+from i2pbench.training.lineage import continued
 from i2pbench.training.trainable import check_trainable
-from i2pbench.weights import load_checkpoint
+from i2pbench.weights import data_label, load_checkpoint
 
 CHECKOUT = os.environ.get("I2PBENCH_VP2P_CHECKOUT")
 REFERENCE = Path(os.environ.get("I2PBENCH_VP2P_REFERENCE") or Path(__file__).parent / "data" / "vp2p_reference")
@@ -196,6 +197,14 @@ def test_a_frame_without_its_true_pose_is_refused_for_training(small_stage):
     network_only = {k: v for k, v in inputs.items() if not k.startswith(SUP)}
     with pytest.raises(StageError, match="true pose"):
         matcher.batch_loss(network_only, Features(None, None), None, None)
+
+
+def test_fine_tuning_the_authors_release_names_it_in_the_lineage():
+    release = {"release": "authors' release (KITTI)"}
+    now = {"dataset": "nuscenes", "split": "train", "root": "/data/nuscenes", "frames": 28130}
+    history, new_phase = continued([], release, now, 0)
+    assert new_phase and history == [{"dataset": None, "split": None, "root": None, **release, "steps": 0}]
+    assert [data_label(d) for d in history] == ["authors' release (KITTI)"]
 
 
 def test_train_writes_a_checkpoint_that_run_names(shared_data, tmp_path):
