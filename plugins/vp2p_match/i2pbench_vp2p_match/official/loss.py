@@ -5,7 +5,8 @@ the paper adds, on the anchors their KITTI loader draws (models/kitti_dataset.py
   (margin 0.25, scale 32). As theirs, masked entries are the similarities multiplied by 0 and then every exact 0
   is replaced by the margin's optimum, so each masked entry adds exp(0) = 1 inside its log-sum-exp;
 - `det_loss`: in-view anchors' overlap scores pushed to 1, out-of-view samples' to 0;
-- `pose_loss`: EPro-PnP's Monte-Carlo KL loss (i2pbench.layers.epropnp) on correspondences made differentiable:
+- `pose_loss`: EPro-PnP's Monte-Carlo KL loss (i2pbench.layers.epropnp), per correspondence in the total, on
+  correspondences made differentiable:
   each anchor pixel's 3D point is the softmax-weighted (similarity / temperature) mean of the candidate points
   (the in-view anchors and the out-of-view draws), weighted by the pixel's overlap score times the candidates'
   expected score. The authors released no training script (their issue #2): how they fed EPro-PnP is not
@@ -37,7 +38,8 @@ LOSS_CONF: dict[str, Any] = {
     "num_kpt": 512,  # run_kitti.py --num_kpt: anchors per side
     "dist_thres": 1.0,  # run_kitti.py --dist_thres, stride-4 cells
     "det_weight": 0.5,  # chosen: CorrI2P train.py's weight of the same det loss (VP2P-Match's loader is theirs)
-    "pose_weight": 0.02,  # chosen: EPro-PnP's Monte-Carlo loss weight (EPro-PnP-6DoF epropnp_basic.yaml)
+    "pose_weight": 0.02,  # chosen: EPro-PnP's Monte-Carlo loss weight (EPro-PnP-6DoF epropnp_basic.yaml), on the
+    # KL per correspondence (EPro-PnP's weights are normalised over the points, these per-point scores are not)
     "pose_temperature": 1 / 32,  # chosen: the similarity scale adapt_loss trains with (1 / gamma)
     "pose_samples": 512,  # EPro-PnP: Monte-Carlo samples
     "pose_rounds": 4,  # EPro-PnP: AMIS rounds
@@ -163,7 +165,7 @@ def frame_loss(
         terms["det"] = det_loss(img_score[img_in], img_score[sup["img_outline_idx"]], pc_score[pc_in],
                                 pc_score[sup["pc_outline_idx"]])  # fmt: skip
     if len(pc_in) >= int(conf["pose_min_anchors"]) and float(conf["pose_weight"]) > 0:
-        terms["pose"] = pose_loss(out, sup, pc, conf)
+        terms["pose"] = pose_loss(out, sup, pc, conf) / len(pc_in)
     weighted = float(conf["det_weight"]) * terms["det"] + float(conf["pose_weight"]) * terms["pose"]
     terms["loss"] = terms["desc"] + weighted
     return terms
