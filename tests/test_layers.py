@@ -57,6 +57,7 @@ LAYER_CODE = {
     "attention": (0, "573a14854cd7"),
     "canonical": (0, "0bde0510db44"),
     "cluster_max": (0, "af4852f06a08"),
+    "epropnp": (0, "76452d0c92bd"),  # EPro-PnP's Monte-Carlo pose loss (issue 40, VP2P-Match's training)
     "frame_norm": (0, "b360eba841ba"),
     "global_pointnet2": (0, "8747a5b05659"),  # BatchedStage, seeded_cloud, deep merge_conf: same outputs
     "kernels": (1, "4a6546946f55"),  # FPS sums rounded squares unfused, as the authors' PointNet++ (issue 39)

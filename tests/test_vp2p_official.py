@@ -119,16 +119,3 @@ def test_the_preset_runs_a_kitti_frame_untrained_and_says_so(shared_data, tmp_pa
     board = leaderboard.read(next((runs / "leaderboards").glob("*.csv")))
     assert len(board) == 1 and board.iloc[0]["weights"] == "untrained"
     assert board.iloc[0]["frames"] == 1
-
-
-def test_training_the_official_size_is_refused_as_having_no_loss_yet():
-    from i2pbench.errors import PluginError
-    from i2pbench.grid import expand
-    from i2pbench.pipeline import Pipeline
-    from i2pbench.training.trainable import check_trainable
-
-    registry = default_registry()
-    (row,) = registry.preset_rows("vp2p-match-official")
-    pipeline = Pipeline.build(registry, expand([row], {}, None, registry)[0])
-    with pytest.raises(PluginError, match="matcher 'vp2p-match-official' has no training loss"):
-        check_trainable(pipeline)

@@ -14,6 +14,7 @@
   point <-> voxel conversions (VP2P-Match);
 - `point_pyramid`: a KPConv point pyramid of random halvings and kNN-128 neighbours, as CoFiI2P's data preparation
   builds it;
+- `epropnp`: EPro-PnP's Monte-Carlo pose loss (LM solver, AMIS proposals) for 6-DoF poses (VP2P-Match's training);
 - `peer_inputs`: the authors' KITTI inputs for the official sizes of CorrI2P, DeepI2P and VP2P-Match (image crop, cells
   as pixels, 0.1 m voxels with normals, seeded draws and node sampling, the extractors and the matchers' tensors).
 

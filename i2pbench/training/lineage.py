@@ -23,6 +23,8 @@ def data_of(identity: dict[str, Any]) -> dict[str, Any]:
     share), without counts or configs; an unmixed run's is what it was before mixes existed, so its checkpoints
     resume as one phase."""
     named = {k: identity.get(k) for k in ("dataset", "split", "root")}
+    if identity.get("release"):  # imported weights (`weights import`): who trained them, on what
+        named["release"] = identity["release"]
     if identity.get("style"):  # a synthetic set in another style is other data (absent for the default style)
         named["style"] = identity["style"]
     if identity.get("mix"):

@@ -1,7 +1,9 @@
 """VP2P-Match as one declared method: the authors' network (official/: junshengzhou/VP2P-Match be76104, proven on
 tensors their code computed, tests/test_vp2p_reference.py) with their pixels, points and inference (official/), the
 `official` size. It runs untrained unless given weights from `i2pbench weights import vp2p-match-official FILE` (the
-authors' released KITTI checkpoint, user-supplied: it carries no licence, so it is never shipped).
+authors' released KITTI checkpoint, user-supplied: it carries no licence, so it is never shipped) or trained with
+`i2pbench train --preset vp2p-match-official` (official/loss.py: the authors' adapt_loss and det_loss and EPro-PnP's
+pose loss).
 """
 
 from __future__ import annotations

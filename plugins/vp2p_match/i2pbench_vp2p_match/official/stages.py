@@ -20,6 +20,7 @@ axes (a fixed permutation of the LiDAR's, no extrinsic).
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
@@ -38,8 +39,10 @@ from i2pbench.api import (
     Keypoints3D,
     Matcher,
     Matches,
+    StageError,
 )
 from i2pbench.layers.peer_inputs import (
+    LIDAR_TO_CAMERA_AXES,
     CropCells,
     DrawnCloud,
     image_input,
@@ -47,9 +50,11 @@ from i2pbench.layers.peer_inputs import (
     voxel_cloud,
 )
 
+from .loss import LOSS_CONF, anchors, cell_camera, frame_loss, pose_vector
 from .network import VP2PMatchNet
 from .prepare import STRIDE, pixel_cells
 
+SUP = "sup_"  # the prefix of a prepared frame's anchors (training) beside the network's inputs
 NUM_POINTS = 40960  # utils/options.py input_pt_num
 # the authors' image preparation (kitti_dataset.py:306-319; options.py img_W x img_H): a conf of the grid and of the
 # matcher, which must agree (the official size pins both to these)
@@ -91,14 +96,48 @@ def confident_pairs(
     return pixels, points[best], similarity.gather(1, best[:, None])[:, 0]
 
 
+def sample_seed(frame: Frame) -> int:
+    """a seed for one training sample: its frame and its transform (a fresh transform draws fresh anchors)."""
+    identity = zlib.crc32(f"{frame.dataset}/{frame.frame_id}".encode())
+    return zlib.crc32(np.ascontiguousarray(frame.T_gt, np.float64).tobytes(), identity)
+
+
+def supervision(frame: Frame, pc: torch.Tensor, conf: Mapping[str, Any]) -> dict[str, torch.Tensor]:
+    """one frame's anchors (official/loss.py) from its true pose, for the cloud pc [3 x N] in camera axes: the
+    pose moves camera-axes points into the camera (T_gt after the axes' inverse permutation)."""
+    width, height = frame.image_size
+    crop_w, crop_h = conf["crop"]
+    K4 = cell_camera(frame.K_true, width, height, conf, STRIDE)
+    R = frame.T_gt[:3, :3] @ LIDAR_TO_CAMERA_AXES.T.astype(np.float64)
+    t = frame.T_gt[:3, 3]
+    seed = sample_seed(frame)
+    sup = anchors(pc.numpy().astype(np.float64), K4, R, t, (crop_w // STRIDE, crop_h // STRIDE),
+                  int(conf["num_kpt"]), float(conf["dist_thres"]), np.random.default_rng(seed))  # fmt: skip
+    sup |= {"K4": K4, "pose": pose_vector(R, t), "seed": np.int64(seed)}
+    sup |= {f"num_{k}": np.int64(len(sup[k])) for k in ("pc_kpt_idx", "pc_outline_idx", "img_outline_idx")}
+    return {k: torch.from_numpy(np.asarray(v)) for k, v in sup.items()}
+
+
+def unpadded(sup: Mapping[str, torch.Tensor], b: int) -> dict[str, torch.Tensor]:
+    """frame b's anchors out of a collated batch (index lists cut to their counts)."""
+    n_in, n_out, n_img = (int(sup[f"num_{k}"][b]) for k in ("pc_kpt_idx", "pc_outline_idx", "img_outline_idx"))
+    return {
+        "pc_kpt_idx": sup["pc_kpt_idx"][b, :n_in], "img_kpt_idx": sup["img_kpt_idx"][b, :n_in],
+        "img_xy": sup["img_xy"][b, :n_in], "correspondence": sup["correspondence"][b, :n_in, :n_in],
+        "pc_outline_idx": sup["pc_outline_idx"][b, :n_out], "img_outline_idx": sup["img_outline_idx"][b, :n_img],
+        "K4": sup["K4"][b], "pose": sup["pose"][b], "seed": sup["seed"][b],
+    }  # fmt: skip
+
+
 class OfficialVP2PMatch(BatchedStage, Matcher):
     """The authors' network (VP2PMatchNet) and run_kitti.py's inference rule (confident_pairs). A pixel reads the
-    stride-4 cell it falls in (the official grid's pixels are every cell once, in raster order, as theirs)."""
+    stride-4 cell it falls in (the official grid's pixels are every cell once, in raster order, as theirs). It
+    trains with official/loss.py (`batch_loss`); the loss's keys steer training only, so a checkpoint fits any."""
 
     name = "vp2p-match-official"
     consumes = frozenset({KEYPOINTS2D, KEYPOINTS3D})
     provides = frozenset({MATCHES})
-    runtime_keys = frozenset({"pixel_threshold", "point_threshold", "max_pixels", "max_points"})
+    runtime_keys = frozenset({"pixel_threshold", "point_threshold", "max_pixels", "max_points", *LOSS_CONF})
     default_conf: ClassVar[dict[str, Any]] = {
         "pixel_threshold": 0.95,  # run_kitti.py --img_thres
         "point_threshold": 0.95,  # run_kitti.py --pc_thres
@@ -106,6 +145,7 @@ class OfficialVP2PMatch(BatchedStage, Matcher):
         "max_points": 8500,  # run_kitti.py:80-82
         "radius_px": 8.0,  # a pair's tolerance: --dist_thres 1 px at K/4 of the half-size crop
         **CROP,
+        **LOSS_CONF,
     }
 
     def __init__(self, conf: Mapping[str, Any] | None = None) -> None:
@@ -115,13 +155,33 @@ class OfficialVP2PMatch(BatchedStage, Matcher):
     def prepare(
         self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, device: Device = "cpu", cache: dict | None = None
     ) -> dict[str, torch.Tensor]:
-        """the network's inputs: image [3 x 160 x 512], cloud and normals [3 x N] in camera axes, intensity [1 x N]."""
+        """the network's inputs: image [3 x 160 x 512], cloud and normals [3 x N] in camera axes, intensity [1 x N];
+        with the frame's true pose (training), its anchors, each key prefixed `sup_`."""
         inputs = {"img": image_input(frame.image, self.conf), **point_inputs(kp3d, *voxel_cloud(frame)[:2])}
+        if frame.T_gt is not None:
+            inputs |= {SUP + k: v for k, v in supervision(frame, inputs["pc"], self.conf).items()}
         return {k: v.contiguous().to(device) for k, v in inputs.items()}
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """`prepare`d frames -> descriptors and scores of every point and stride-4 pixel (official/network.py)."""
         return self.net.trace(inputs["pc"], inputs["intensity"], inputs["sn"], inputs["img"])
+
+    def batch_loss(
+        self, inputs: dict[str, Any], features: Features, mask2d: torch.Tensor, mask3d: torch.Tensor
+    ) -> tuple[torch.Tensor, dict[str, float]]:
+        """official/loss.py's total, the mean over a batch of `prepare`d frames (each with its own anchors)."""
+        sup = {k.removeprefix(SUP): v for k, v in inputs.items() if k.startswith(SUP)}
+        if not sup:
+            raise StageError(self.label, "trains on frames with their true pose (T_gt): prepare draws anchors from it")
+        out = self.batched(inputs)
+        terms = [
+            frame_loss({k: v[b] for k, v in out.items()}, unpadded(sup, b), inputs["pc"][b], self.conf)
+            for b in range(len(inputs["pc"]))
+        ]
+        mean = {k: torch.stack([t[k] for t in terms]).mean() for k in terms[0]}
+        report = {k: float(v.detach()) for k, v in mean.items() if k != "loss"}
+        report["anchors"] = float(sup["num_pc_kpt_idx"].float().mean())
+        return mean["loss"], report
 
     @torch.no_grad()
     def __call__(self, frame: Frame, kp2d: Keypoints2D, kp3d: Keypoints3D, features: Features) -> Matches:
