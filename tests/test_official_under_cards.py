@@ -5,20 +5,25 @@ image used to be halved and cropped twice into zero cells and camera axes turned
 
 from __future__ import annotations
 
+import types
+
 import numpy as np
 import pandas as pd
 import pytest
 import torch
 from i2pbench_corri2p.official.stages import LOADER_CARDS as CORRI2P_CARDS
 from i2pbench_corri2p.official.stages import pixel_cells as corri2p_cells
+from i2pbench_deepi2p.official.stages import CROP as DEEPI2P_CROP
 from i2pbench_deepi2p.official.stages import LOADER_CARDS as DEEPI2P_CARDS
+from i2pbench_deepi2p.official.stages import OfficialFrustum, crop_K
 from i2pbench_deepi2p.official.stages import pixel_cells as deepi2p_cells
 from i2pbench_vp2p_match.official.prepare import pixel_cells as vp2p_cells
 from i2pbench_vp2p_match.official.stages import LOADER_CARDS as VP2P_CARDS
 
+from i2pbench.api import Matches
 from i2pbench.cli import main
 from i2pbench.errors import StageError
-from i2pbench.layers.peer_inputs import frame_crop
+from i2pbench.layers.peer_inputs import LIDAR_TO_CAMERA_AXES, frame_crop
 from i2pbench.pipeline import STAGE_ORDER, Combination, Pipeline
 from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
@@ -253,3 +258,25 @@ def not_a_success(T: np.ndarray, T_gt: np.ndarray) -> bool:
     diff = np.linalg.inv(T) @ T_gt
     angle = np.degrees(np.arccos(np.clip((np.trace(diff[:3, :3]) - 1) / 2, -1, 1)))
     return angle >= 5 or np.linalg.norm(diff[:3, 3]) >= 2
+
+
+def test_deepi2ps_frustum_solver_under_its_card_reads_the_frames_points_and_k_as_they_are():
+    """the same street scene given as the dataset's frame (LiDAR axes, full-size K) and as a deepi2p card's (camera
+    axes, the crop's K, T_init = I): the frustum registration solves the same problem, so the card's pose is the
+    dataset frame's without the axis permutation (camera <- camera-axes points)."""
+    rng = np.random.default_rng(5)
+    points = rng.uniform([-30, -20, -1.7], [40, 20, 3], (4000, 3))
+    frustum = np.where(np.abs(points[:, 1]) < points[:, 0] * 0.4, 0.9, 0.1).astype(np.float32)  # ahead: inside
+    matches = Matches(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32), frustum)
+    stage, scene = OfficialFrustum({"restarts": 4}), {"dataset": "toy", "frame_id": "street"}
+    dataset = types.SimpleNamespace(K=K, image_size=(1241, 376), inputs="", **scene)
+    card = types.SimpleNamespace(K=crop_K(K, 1241, 376, DEEPI2P_CROP), image_size=(512, 160), inputs="deepi2p",
+                                 T_init=np.eye(4), **scene)  # fmt: skip
+    ours = stage(dataset, None, types.SimpleNamespace(xyz=points), matches)
+    in_camera = points @ LIDAR_TO_CAMERA_AXES.T.astype(np.float64)
+    theirs = stage(card, None, types.SimpleNamespace(xyz=in_camera), matches)
+    assert ours.ok and theirs.ok
+    axes = np.eye(4)
+    axes[:3, :3] = LIDAR_TO_CAMERA_AXES
+    np.testing.assert_allclose(theirs.T @ axes, ours.T, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(theirs.inliers, ours.inliers)
