@@ -214,6 +214,23 @@ def test_corri2p_cuts_50_rows_of_the_dataset_frame_where_its_card_cuts_none():
     assert cell_of("corri2p", card_frame("corri2p"), grid.conf) == 24 * 128 + 72
 
 
+@pytest.mark.parametrize(("size", "card"), [("corri2p", "corri2p"), ("vp2p-match", "vp2p-match")])
+def test_on_a_real_kitti_scan_the_card_frame_is_taken_as_it_is(shared_data, matchers, size, card):
+    from i2pbench.data.kitti import KittiOdometry
+
+    scan = KittiOdometry("all", {"root": str(shared_data / "kitti_odometry")}).load("00/000000")
+    frame = card_frame(card, scan)
+    assert frame.inputs == card and frame.image_size == (512, 160) and len(frame.points) == 40960
+    kp2d = component("extractor2d", f"{size}-official-grid")(frame)
+    kp3d = component("extractor3d", f"{size}-official-points")(frame)
+    assert len(kp2d) == 5120 and tuple(kp2d.uv[-1]) == (508, 156)
+    np.testing.assert_array_equal(kp3d.index, np.arange(40960))
+    np.testing.assert_array_equal(kp3d.xyz, frame.points[:, :3])
+    inputs = matchers[size].prepare(frame, kp2d, kp3d)
+    np.testing.assert_array_equal(inputs["pc"].T.numpy(), frame.points[:, :3])  # no axis permutation
+    assert (inputs["sn"][1] <= 0).all()  # normals turned to camera up
+
+
 def frame_rows(runs) -> pd.DataFrame:
     return pd.concat([pd.read_parquet(p) for p in runs.glob("*/frames/*.parquet")])
 
