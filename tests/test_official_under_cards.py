@@ -5,6 +5,7 @@ image used to be halved and cropped twice into zero cells and camera axes turned
 
 from __future__ import annotations
 
+import dataclasses
 import types
 
 import numpy as np
@@ -114,6 +115,14 @@ def test_an_official_extractor_refuses_a_foreign_cards_frame_naming_the_cards_it
         stage(Protocol(pose_frame="camera").apply(sensor()))
     out = stage(Protocol().apply(sensor()))  # the dataset's own frame is prepared as before
     assert len(out.uv if kind == "extractor2d" else out.xyz) > 0
+
+
+@pytest.mark.parametrize(("size", "card", "cell"), UNDER_CARDS)
+def test_a_loader_cards_frame_of_another_size_than_the_authors_crop_is_refused(frames, size, card, cell):
+    """the card's nuScenes frames are 320 x 160: not the KITTI network's crop, which the official size is."""
+    narrow = dataclasses.replace(frames[card], image=np.ascontiguousarray(frames[card].image[:, :320]))
+    with pytest.raises(StageError, match=rf"protocol '{card}' gives a 320 x 160 image, not the authors' 512 x 160"):
+        component("extractor2d", f"{size}-official-grid")(narrow)
 
 
 @pytest.mark.parametrize(("size", "card", "cell"), UNDER_CARDS)
