@@ -109,7 +109,7 @@ def test_the_matcher_pairs_each_confident_point_with_its_nearest_confident_pixel
     monkeypatch.setattr(stage, "one", lambda *args: {})
     monkeypatch.setattr(stage, "batched", lambda inputs: out)
     kp3d = Keypoints3D(np.arange(3), np.zeros((3, 3), np.float32), np.zeros(3, np.float32))
-    matches = stage(types.SimpleNamespace(image_size=(1242, 375)), kp2d, kp3d, None)
+    matches = stage(types.SimpleNamespace(image_size=(1242, 375), inputs=""), kp2d, kp3d, None)
     # confident pixels: rows 1, 4, 5. Point 0 (0.8, 0.6): cosine 0.8 with row 1, 0.6 with 4, 0.96 with 5 -> 5;
     # point 2 (0, 1): 0, 1, 0.8 -> 4
     np.testing.assert_array_equal(matches.index3d, [0, 2])

@@ -124,7 +124,7 @@ def test_cell_pixels_are_the_authors_cell_corners_under_the_frames_K():
 
 
 def frame_stub() -> types.SimpleNamespace:
-    return types.SimpleNamespace(K=K, image_size=(WIDTH, HEIGHT))
+    return types.SimpleNamespace(K=K, image_size=(WIDTH, HEIGHT), inputs="")
 
 
 def test_the_solver_is_the_authors_solve_pnp_on_cells():
@@ -227,7 +227,7 @@ def test_the_frustum_solver_finds_the_pose_from_true_frustum_labels_as_their_sol
     T[:3, 3] = [0.5, 0.0, 2.0]
     inside = projects_inside(points, T, kitti_crop_K(), (160, 512))
     frustum = np.where(inside, 0.9, 0.1).astype(np.float32)
-    frame = types.SimpleNamespace(K=K, image_size=(WIDTH, HEIGHT), dataset="toy", frame_id="street")
+    frame = types.SimpleNamespace(K=K, image_size=(WIDTH, HEIGHT), dataset="toy", frame_id="street", inputs="")
     matches = Matches(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32), frustum)
     estimate = OfficialFrustum({"restarts": 8})(frame, None, types.SimpleNamespace(xyz=points), matches)
     assert estimate.ok

@@ -16,7 +16,8 @@
   builds it;
 - `epropnp`: EPro-PnP's Monte-Carlo pose loss (LM solver, AMIS proposals) for 6-DoF poses (VP2P-Match's training);
 - `peer_inputs`: the authors' KITTI inputs for the official sizes of CorrI2P, DeepI2P and VP2P-Match (image crop, cells
-  as pixels, 0.1 m voxels with normals, seeded draws and node sampling, the extractors and the matchers' tensors).
+  as pixels, 0.1 m voxels with normals, seeded draws and node sampling, the extractors and the matchers' tensors),
+  from the dataset's frame or taken as they are from a frame their own protocol card built (`loader_cards`).
 
 Plugins import these and `i2pbench.api`, never each other (tests/test_plugin_imports.py). A shared layer is a
 dependency a component's own `revision` cannot see, so each module here declares a `REVISION` of its own, to bump

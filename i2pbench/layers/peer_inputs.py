@@ -8,7 +8,16 @@ Where the methods differ, the difference is a conf key or a named argument:
   cells, kitti/options.py `img_fine_resolution_scale`);
 - `in_draw_order`: VP2P-Match keeps its random draw's order (kitti_dataset.py:296-303), CorrI2P and DeepI2P sort it;
 - `image_input(..., divide_by=)`: CorrI2P and VP2P-Match feed the image in [0, 1], DeepI2P in 0-255;
-- `DrawnCloud.cloud`: DeepI2P's loader voxelises again at 0.3 m (its plugin's `network_cloud`), the others do not.
+- `DrawnCloud.cloud`: DeepI2P's loader voxelises again at 0.3 m (its plugin's `network_cloud`), the others do not;
+- `loader_cards`: the protocol cards whose frames already are the authors' loader's inputs (CorrI2P and VP2P-Match:
+  `corri2p`, `vp2p-match`; DeepI2P: `deepi2p`).
+
+Two kinds of frame. The dataset's frame (`Frame.inputs` empty) is the whole image and scan in LiDAR axes: the stages
+prepare the authors' inputs from it as above. A frame one of the method's `loader_cards` built already holds them: the
+image is the crop (so the crop conf becomes the identity, `frame_crop`), the cloud the drawn voxels in the camera
+frame moved by the card's test pose (so the points are taken as they are, in order, and the network axes are
+`Frame.T_init`, the identity there, `network_axes`); normals are then estimated on the frame's cloud and turned to
+camera up (the authors' come from the whole preprocessed cloud before their draw). Any other card's frame is refused.
 
 Geometry of a cell: the loaders scale the (cut) image with OpenCV linear to `round(side * scale)` and crop at
 offsets `(scaled - crop) // 2`; the authors' PnP reads cell (x, y) with K at 1 / cell_px of the crop's. That cell is
@@ -17,7 +26,7 @@ the frame's pixel (cell_px x + dx, cell_px y + dy) / scale + (0, top_rows) under
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from typing import Any, ClassVar
 
 import cv2
@@ -26,15 +35,17 @@ import torch
 
 from ..components import Extractor2D, Extractor3D
 from ..errors import StageError
+from ..geometry import transform_points
 from ..types import Frame, Keypoints2D, Keypoints3D
 from .pointnet2 import frame_seed
 
-REVISION = 1  # bump when an output of this module changes for the same inputs (see i2pbench.layers)
+REVISION = 2  # bump when an output of this module changes for the same inputs (see i2pbench.layers)
 
 VOXEL_M = 0.1  # the preprocessed clouds' voxel grid (CorrI2P kitti_pc_bin_to_npy_with_downsample_sn.py)
 NORMAL_RADIUS_M, NORMAL_MAX_NN = 0.6, 30  # the same script's hybrid normal search
 # LiDAR axes (x forward, y left, z up) -> camera axes (x right, y down, z forward): a fixed permutation, no extrinsic
 LIDAR_TO_CAMERA_AXES = np.array([[0, -1, 0], [0, 0, -1], [1, 0, 0]], np.float32)
+CAMERA_UP = np.array([0.0, -1.0, 0.0])  # LiDAR +z in camera axes: the side the scripts turn normals to
 Cloud = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
@@ -53,7 +64,7 @@ def network_image(image: np.ndarray, crop: Mapping[str, Any]) -> np.ndarray:
     """the frame's RGB image -> the authors' crop (H x W x 3 uint8); the frame must hold it (crop_offsets)."""
     cut = image[crop.get("top_rows", 0) :]
     size = (round(cut.shape[1] * crop["scale"]), round(cut.shape[0] * crop["scale"]))
-    scaled = cv2.resize(cut, size, interpolation=cv2.INTER_LINEAR)
+    scaled = cut if size == (cut.shape[1], cut.shape[0]) else cv2.resize(cut, size, interpolation=cv2.INTER_LINEAR)
     dx, dy = crop_offsets(image.shape[1], image.shape[0], crop)
     crop_w, crop_h = crop["crop"]
     return np.ascontiguousarray(scaled[dy : dy + crop_h, dx : dx + crop_w])
@@ -159,21 +170,82 @@ def farthest_nodes(points: np.ndarray, count: int, pool: int, rng: np.random.Gen
     return subset[chosen].astype(np.float32)
 
 
+def loader_frame(frame: Frame, cards: Collection[str], component: str) -> bool:
+    """whether the frame is one of `cards`' (its inputs already the authors' loader's) rather than the dataset's;
+    another card's frame, whose inputs are not the authors', is refused by name."""
+    if not frame.inputs:
+        return False
+    if frame.inputs in cards:
+        return True
+    width, height = frame.image_size
+    accepted = ", ".join(f"'{card}'" for card in sorted(cards))
+    raise StageError(component, f"prepares its authors' inputs from the dataset's frame or takes them from protocol "
+                                f"{accepted}, but protocol '{frame.inputs}' gives the stages its own ({width} x "
+                                f"{height} image, {len(frame.points)} points in the camera frame), which are not its "
+                                f"authors'; run under the default protocol or {accepted} (the card's rules still "
+                                f"apply to the run: `i2pbench evaluate RUN --rules {frame.inputs}`)")  # fmt: skip
+
+
+def frame_crop(frame: Frame, crop: Mapping[str, Any], cards: Collection[str], component: str) -> Mapping[str, Any]:
+    """the crop conf for this frame: the authors' for the dataset's frame; for a loader card's frame, whose image
+    already is the crop, the identity (no rows cut, scale 1, offsets 0), refused when its size is not the crop's."""
+    if not loader_frame(frame, cards, component):
+        return crop
+    width, height = frame.image_size
+    crop_w, crop_h = crop["crop"]
+    if (width, height) != (crop_w, crop_h):
+        raise StageError(component, f"protocol '{frame.inputs}' gives a {width} x {height} image, not the "
+                                    f"authors' {crop_w} x {crop_h} crop")  # fmt: skip
+    return {**crop, "top_rows": 0, "scale": 1.0}
+
+
+def network_axes(frame: Frame, cards: Collection[str], component: str) -> np.ndarray | None:
+    """[4 x 4] the frame's points -> the axes the authors' network reads them in, for a loader card's frame:
+    `Frame.T_init` (camera <- the unmoved cloud's frame: the identity, the cloud already is in the camera frame);
+    None for the dataset's frame, whose LiDAR axes take the fixed permutation LIDAR_TO_CAMERA_AXES."""
+    if not loader_frame(frame, cards, component):
+        return None
+    return np.eye(4) if frame.T_init is None else np.asarray(frame.T_init, np.float64)
+
+
+def frame_cloud(frame: Frame, axes: np.ndarray) -> Cloud:
+    """a loader card's cloud as it is: the frame's finite points [N x 3] in its own axes and order, normals [N x 3]
+    estimated on them (the scripts' hybrid search) turned to camera up in network `axes`, reflectance [N], rows [N]."""
+    import open3d as o3d
+
+    rows, scan = finite_returns(frame)
+    if len(scan) == 0:
+        return empty_cloud()
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(scan[:, :3].astype(np.float64)))
+    cloud.estimate_normals(search_param=o3d.geometry.KDTreeSearchParamHybrid(radius=NORMAL_RADIUS_M,
+                                                                             max_nn=NORMAL_MAX_NN))  # fmt: skip
+    cloud.orient_normals_to_align_with_direction(axes[:3, :3].T @ CAMERA_UP)  # camera up in the frame's axes
+    return scan[:, :3].copy(), np.asarray(cloud.normals, np.float32), scan[:, 3].copy(), rows
+
+
 def image_input(image: np.ndarray, crop: Mapping[str, Any], divide_by: float = 255.0) -> torch.Tensor:
     """the frame's RGB image as the network reads it: the authors' crop in float32 over `divide_by` -> [3 x H x W]."""
     return torch.from_numpy(network_image(image, crop).astype(np.float32) / divide_by).permute(2, 0, 1)
 
 
-def point_inputs(kp3d: Keypoints3D, cloud: np.ndarray, normals: np.ndarray) -> dict[str, torch.Tensor]:
+def point_inputs(
+    kp3d: Keypoints3D, cloud: np.ndarray, normals: np.ndarray, axes: np.ndarray | None = None
+) -> dict[str, torch.Tensor]:
     """the keypoints as the network reads them, in camera axes: `pc` [3 x N], `sn` [3 x N] (each point's normal is
-    its nearest voxel's of cloud [V x 3] and normals [V x 3]) and `intensity` [1 x N]."""
+    its nearest point's of cloud [V x 3] and normals [V x 3], both in the frame's axes) and `intensity` [1 x N];
+    `axes` [4 x 4] frame -> network (network_axes), None: the fixed LiDAR -> camera permutation."""
     from scipy.spatial import cKDTree
 
     xyz = np.asarray(kp3d.xyz, np.float32)
     _, row = cKDTree(cloud).query(xyz, k=1)
+    if axes is None:
+        pc, sn = xyz @ LIDAR_TO_CAMERA_AXES.T, normals[row] @ LIDAR_TO_CAMERA_AXES.T
+    else:
+        pc = transform_points(axes, xyz.astype(np.float64)).astype(np.float32)
+        sn = (normals[row].astype(np.float64) @ axes[:3, :3].T).astype(np.float32)
     return {
-        "pc": torch.from_numpy((xyz @ LIDAR_TO_CAMERA_AXES.T).T.copy()),
-        "sn": torch.from_numpy((normals[row] @ LIDAR_TO_CAMERA_AXES.T).T.copy()),
+        "pc": torch.from_numpy(pc.T.copy()),
+        "sn": torch.from_numpy(sn.T.copy()),
         "intensity": torch.from_numpy(np.asarray(kp3d.reflectance, np.float32))[None],
     }
 
@@ -186,45 +258,41 @@ def node_inputs(frame: Frame, pc: torch.Tensor, count: int, pool: int) -> dict[s
     return {"node_a": torch.from_numpy(nodes[0].T.copy()), "node_b": torch.from_numpy(nodes[1].T.copy())}
 
 
-def require_dataset_frame(frame: Frame, component: str) -> None:
-    """refuse a frame a protocol card has already prepared (`Frame.inputs`): its image is already cut, resized and
-    cropped and its cloud drawn and in the camera frame, so preparing the authors' inputs from it again would halve
-    and crop the image twice and turn camera axes as if they were the LiDAR's (zero cells, scrambled points)."""
-    if frame.inputs:
-        width, height = frame.image_size
-        raise StageError(component, f"prepares its authors' inputs from the dataset's frame, but protocol "
-                                    f"'{frame.inputs}' gives the stages its own ({width} x {height} image, "
-                                    f"{len(frame.points)} points in the camera frame), which cannot be prepared "
-                                    f"again; run under the default protocol (the card's rules still apply to the "
-                                    f"run: `i2pbench evaluate RUN --rules {frame.inputs}`)")  # fmt: skip
-
-
 class CropCells(Extractor2D):
-    """Every cell of the authors' crop, as the frame's pixel their PnP puts it at; a method's subclass sets `name`,
-    `cell_px` and its crop as `default_conf`."""
+    """Every cell of the authors' crop, as the frame's pixel their PnP puts it at (under a loader card, the crop's
+    own pixel); a method's subclass sets `name`, `cell_px`, `loader_cards` and its crop as `default_conf`."""
 
     cell_px: ClassVar[int]
+    loader_cards: ClassVar[frozenset[str]] = frozenset()
 
     def __call__(self, frame: Frame) -> Keypoints2D:
-        require_dataset_frame(frame, self.label)
+        crop = frame_crop(frame, self.conf, self.loader_cards, self.label)
         width, height = frame.image_size
-        return Keypoints2D(uv=cell_corners(width, height, self.conf, self.cell_px))
+        return Keypoints2D(uv=cell_corners(width, height, crop, self.cell_px))
 
 
 class DrawnCloud(Extractor3D):
     """A seeded random `max_keypoints` of the scan as the authors' loader prepares it (`cloud`: the 0.1 m voxels),
-    each point's `index` its nearest return's row; a method's subclass sets `name`, `default_conf` and
-    `in_draw_order`."""
+    each point's `index` its nearest return's row; under a loader card the frame's own points (`card_cloud`), in
+    order (a seeded draw of them only when `max_keypoints` is fewer). A method's subclass sets `name`,
+    `default_conf`, `in_draw_order` and `loader_cards`."""
 
     in_draw_order: ClassVar[bool] = False
+    loader_cards: ClassVar[frozenset[str]] = frozenset()
 
     def cloud(self, frame: Frame, count: int) -> Cloud:
         return voxel_cloud(frame)
 
+    def card_cloud(self, frame: Frame, count: int, axes: np.ndarray) -> Cloud:
+        return frame_cloud(frame, axes)
+
     def __call__(self, frame: Frame) -> Keypoints3D:
-        require_dataset_frame(frame, self.label)
         count = int(self.conf["max_keypoints"])
-        xyz, _, intensity, rows = self.cloud(frame, count)
+        axes = network_axes(frame, self.loader_cards, self.label)
+        xyz, _, intensity, rows = self.cloud(frame, count) if axes is None else self.card_cloud(frame, count, axes)
         rng = np.random.default_rng([frame_seed(frame), int(self.conf["seed"])])
-        pick = drawn(len(xyz), count, rng, self.in_draw_order)
+        if axes is not None and len(xyz) <= count:
+            pick = np.arange(len(xyz))  # the card's draw, kept as it is
+        else:
+            pick = drawn(len(xyz), count, rng, self.in_draw_order)
         return Keypoints3D(index=rows[pick].astype(np.int64), xyz=xyz[pick], reflectance=intensity[pick])

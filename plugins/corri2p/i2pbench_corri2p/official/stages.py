@@ -22,6 +22,10 @@ voxelisation in the camera frame is not repeated (it merges only points a shifte
 point's `index` is its nearest return's row (matches name frame points); the network sees the cloud in camera axes
 (x right, y down, z forward: a fixed permutation of the LiDAR's, no extrinsic), in which the protocol's yaw is the
 rotation about y that the authors train under.
+
+Under the `corri2p` card (and `vp2p-match`, whose inputs are the same) the frame already is the authors' loader's
+inputs: the grid's cells are the 160 x 512 image's own (8 px there is 4 px, 1 px at K/4 as theirs), the points are
+the frame's 40,960 in their order, in camera axes already (no permutation), normals estimated on them (peer_inputs).
 """
 
 from __future__ import annotations
@@ -50,7 +54,10 @@ from i2pbench.layers.peer_inputs import (
     CropCells,
     DrawnCloud,
     cell_corners,
+    frame_cloud,
+    frame_crop,
     image_input,
+    network_axes,
     node_inputs,
     point_inputs,
     voxel_cloud,
@@ -63,6 +70,7 @@ STRIDE = 4  # the decoder's output stride
 # the authors' image preparation (options.py crop_original_top_rows, img_scale, img_W x img_H): a conf of the grid
 # and of the matcher, which must agree (the official size pins both to these)
 CROP: dict[str, Any] = {"top_rows": 50, "scale": 0.5, "crop": (IMAGE_SIZE[1], IMAGE_SIZE[0])}
+LOADER_CARDS = frozenset({"corri2p", "vp2p-match"})  # the cards whose frames are the authors' loader's inputs
 
 
 def grid_pixels(width: int, height: int, crop: Mapping[str, Any] = CROP) -> np.ndarray:
@@ -81,6 +89,7 @@ class OfficialGrid(CropCells):
     name = "corri2p-official-grid"
     default_conf: ClassVar[dict[str, Any]] = dict(CROP)
     cell_px = STRIDE
+    loader_cards = LOADER_CARDS
 
 
 class OfficialPoints(DrawnCloud):
@@ -88,6 +97,7 @@ class OfficialPoints(DrawnCloud):
 
     name = "corri2p-official-points"
     default_conf: ClassVar[dict[str, Any]] = {"max_keypoints": NUM_POINTS, "seed": 0}
+    loader_cards = LOADER_CARDS
 
 
 class OfficialCorrI2P(BatchedStage, Matcher):
@@ -117,9 +127,12 @@ class OfficialCorrI2P(BatchedStage, Matcher):
     ) -> dict[str, torch.Tensor]:
         """the network's inputs: image [3 x 160 x 512], cloud and normals [3 x N] in camera axes, intensity
         [1 x N], nodes [3 x M] each."""
-        points = point_inputs(kp3d, *voxel_cloud(frame)[:2])
+        axes = network_axes(frame, LOADER_CARDS, self.label)
+        cloud = voxel_cloud(frame) if axes is None else frame_cloud(frame, axes)
+        points = point_inputs(kp3d, *cloud[:2], axes)
         nodes = node_inputs(frame, points["pc"], int(self.conf["nodes"]), int(self.conf["node_pool"]))
-        inputs = {"image": image_input(frame.image, self.conf), **points, **nodes}
+        crop = frame_crop(frame, self.conf, LOADER_CARDS, self.label)
+        inputs = {"image": image_input(frame.image, crop), **points, **nodes}
         return {k: v.contiguous().to(device) for k, v in inputs.items()}
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -132,7 +145,8 @@ class OfficialCorrI2P(BatchedStage, Matcher):
         if len(kp2d) == 0 or len(kp3d) == 0:  # a frame too small for the crop, or an empty scan
             return Matches.empty()
         width, height = frame.image_size
-        cells = torch.from_numpy(pixel_cells(np.asarray(kp2d.uv, np.float32), width, height, self.conf))
+        crop = frame_crop(frame, self.conf, LOADER_CARDS, self.label)
+        cells = torch.from_numpy(pixel_cells(np.asarray(kp2d.uv, np.float32), width, height, crop))
         if (cells < 0).all():  # a frame too small for the crop, or no pixel inside it
             return Matches.empty()
         out = self.batched(self.one(frame, kp2d, kp3d))
@@ -150,5 +164,5 @@ class OfficialCorrI2P(BatchedStage, Matcher):
             pixels[best].cpu().numpy(),
             points.cpu().numpy(),
             score.float().cpu().numpy(),
-            radius_px=self.conf["radius_px"],
+            radius_px=self.conf["radius_px"] * self.conf["scale"] / crop["scale"],  # 1 px at K/4 of the crop
         )

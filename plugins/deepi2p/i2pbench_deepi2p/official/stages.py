@@ -21,6 +21,11 @@ the loader's accumulation of 3 scans by odometry poses is not done (a benchmark 
 points is taken whole rather than drawn with repeats; each point's `index` is its nearest return's row; the network
 sees the cloud in camera axes (x right, y down, z forward: a fixed permutation of the LiDAR's), in which the
 protocol's yaw is the rotation about y that the authors train under.
+
+Under the `deepi2p` card the frame already is the loader's inputs: the fine cells are the 160 x 512 image's own (the
+PnP threshold 19.2 px there, 0.6 cell as theirs), the points the frame's 20,480 drawn 0.1 m voxels in their order, in
+camera axes already (no permutation), normals estimated on them (peer_inputs); the loader's 0.3 m step applies to the
+card's cloud by its own rule (over twice the point count), i.e. not at the card's 20,480.
 """
 
 from __future__ import annotations
@@ -49,6 +54,7 @@ from i2pbench.api import (
     PoseEstimate,
     PoseSolver,
     StageError,
+    transform_points,
 )
 from i2pbench.layers import peer_inputs
 from i2pbench.layers.peer_inputs import (
@@ -59,7 +65,10 @@ from i2pbench.layers.peer_inputs import (
     crop_offsets,
     empty_cloud,
     finite_returns,
+    frame_cloud,
+    frame_crop,
     image_input,
+    network_axes,
     node_inputs,
     point_inputs,
     voxels_with_normals,
@@ -82,6 +91,7 @@ NUM_POINTS, NODES = 20480, 128  # options.py input_pt_num, node_a_num = node_b_n
 # the authors' image preparation (options.py crop_original_top_rows, img_scale, img_W x img_H): a conf of the grid
 # and of the matcher, which must agree (the official size pins both to these)
 CROP: dict[str, Any] = {"top_rows": 50, "scale": 0.5, "crop": (512, 160)}
+LOADER_CARDS = frozenset({"deepi2p"})  # the card whose frames are the authors' loader's inputs
 
 
 def cell_pixels(width: int, height: int, crop: Mapping[str, Any] = CROP) -> np.ndarray:
@@ -94,9 +104,12 @@ def pixel_cells(uv: np.ndarray, width: int, height: int, crop: Mapping[str, Any]
     return peer_inputs.pixel_cells(uv, width, height, crop, CELL_PX)
 
 
-def network_cloud(frame: Frame, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def network_cloud(
+    frame: Frame, count: int, axes: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """the scan as the authors' loader makes it before its random draw: points [V x 3], normals [V x 3], intensity
-    [V] and each point's nearest raw row [V] (module docstring)."""
+    [V] and each point's nearest raw row [V] (module docstring); with `axes` (a `deepi2p` card's frame, network_axes)
+    the card's drawn voxels, voxelised at 0.3 m only by the loader's rule."""
     import open3d as o3d
     from scipy.spatial import cKDTree
 
@@ -104,8 +117,16 @@ def network_cloud(frame: Frame, count: int) -> tuple[np.ndarray, np.ndarray, np.
     if len(raw) == 0:
         return empty_cloud()
     tree = cKDTree(raw[:, :3])
-    cloud = voxels_with_normals(raw[:, :3])
-    intensity = raw[tree.query(np.asarray(cloud.points), k=1)[1], 3].astype(np.float64)
+    if axes is None:
+        cloud = voxels_with_normals(raw[:, :3])
+        intensity = raw[tree.query(np.asarray(cloud.points), k=1)[1], 3].astype(np.float64)
+    else:
+        xyz, normals, reflectance, rows = frame_cloud(frame, axes)
+        if len(xyz) <= 2 * count:
+            return xyz, normals, reflectance, rows
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz.astype(np.float64)))
+        cloud.normals = o3d.utility.Vector3dVector(normals.astype(np.float64))
+        intensity = reflectance.astype(np.float64)
     if len(cloud.points) > 2 * count:
         top = max(float(intensity.max()), 1e-12)
         cloud.colors = o3d.utility.Vector3dVector(np.c_[intensity / top, np.zeros((len(intensity), 2))])
@@ -122,6 +143,7 @@ class OfficialCells(CropCells):
     name = "deepi2p-official-grid"
     default_conf: ClassVar[dict[str, Any]] = dict(CROP)
     cell_px = CELL_PX
+    loader_cards = LOADER_CARDS
 
 
 class OfficialPoints(DrawnCloud):
@@ -130,8 +152,15 @@ class OfficialPoints(DrawnCloud):
     name = "deepi2p-official-points"
     default_conf: ClassVar[dict[str, Any]] = {"max_keypoints": NUM_POINTS, "seed": 0}
 
+    loader_cards = LOADER_CARDS
+
     def cloud(self, frame: Frame, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         return network_cloud(frame, count)
+
+    def card_cloud(
+        self, frame: Frame, count: int, axes: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return network_cloud(frame, count, axes)
 
 
 class OfficialDeepI2P(BatchedStage, Matcher):
@@ -161,9 +190,11 @@ class OfficialDeepI2P(BatchedStage, Matcher):
     ) -> dict[str, torch.Tensor]:
         """the network's inputs: image [3 x 160 x 512] (0-255), cloud and normals [3 x N] in camera axes, intensity
         [1 x N], nodes [3 x 128] each."""
-        points = point_inputs(kp3d, *network_cloud(frame, int(self.conf["normals_points"]))[:2])
+        axes = network_axes(frame, LOADER_CARDS, self.label)
+        points = point_inputs(kp3d, *network_cloud(frame, int(self.conf["normals_points"]), axes)[:2], axes)
         nodes = node_inputs(frame, points["pc"], int(self.conf["nodes"]), int(self.conf["node_pool"]))
-        inputs = {"image": image_input(frame.image, self.conf, divide_by=1.0), **points, **nodes}
+        crop = frame_crop(frame, self.conf, LOADER_CARDS, self.label)
+        inputs = {"image": image_input(frame.image, crop, divide_by=1.0), **points, **nodes}
         return {k: v.contiguous().to(device) for k, v in inputs.items()}
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -176,14 +207,17 @@ class OfficialDeepI2P(BatchedStage, Matcher):
         if len(kp3d) == 0:  # an empty scan: nothing to classify
             return dataclasses.replace(Matches.empty(), frustum=np.zeros(0, np.float32))
         width, height = frame.image_size
-        if crop_offsets(width, height, self.conf) is None:
+        crop = frame_crop(frame, self.conf, LOADER_CARDS, self.label)
+        if crop_offsets(width, height, crop) is None:
             raise StageError(self.label, f"the {width} x {height} image cannot hold the authors' crop {self.conf}")
-        cells = pixel_cells(np.asarray(kp2d.uv, np.float32).reshape(-1, 2), width, height, self.conf)
+        cells = pixel_cells(np.asarray(kp2d.uv, np.float32).reshape(-1, 2), width, height, crop)
         out = self.batched(self.one(frame, kp2d, kp3d))
-        return classified_matches(out["coarse_scores"][0], out["fine_scores"][0], cells, self.cell_diagonal_px())
+        return classified_matches(out["coarse_scores"][0], out["fine_scores"][0], cells, cell_diagonal_px(crop))
 
-    def cell_diagonal_px(self) -> float:
-        return float(np.hypot(CELL_PX, CELL_PX) / self.conf["scale"])
+
+def cell_diagonal_px(crop: Mapping[str, Any]) -> float:
+    """a fine cell's diagonal in the frame's pixels."""
+    return float(np.hypot(CELL_PX, CELL_PX) / crop["scale"])
 
 
 def classified_matches(coarse: torch.Tensor, fine: torch.Tensor, cells: np.ndarray, radius_px: float) -> Matches:
@@ -222,10 +256,12 @@ class OfficialPnP(PoseSolver):
             return PoseEstimate.failed(f"{self.label}: {len(matches)} points classified inside, EPnP needs 4")
         points = np.asarray(kp3d.xyz, np.float64)[matches.index3d]
         pixels = np.asarray(kp2d.uv, np.float64)[matches.index2d]
+        crop = frame_crop(frame, CROP, LOADER_CARDS, self.label)  # a loader card's pixels are the crop's
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
             points, pixels, np.asarray(frame.K, np.float64), None, useExtrinsicGuess=False,
             iterationsCount=int(self.conf["iterations"]),
-            reprojectionError=float(self.conf["reprojection_error_px"]), flags=cv2.SOLVEPNP_EPNP,
+            reprojectionError=float(self.conf["reprojection_error_px"]) * CROP["scale"] / crop["scale"],
+            flags=cv2.SOLVEPNP_EPNP,
         )  # fmt: skip
         if not ok or inliers is None:
             return PoseEstimate.failed(f"{self.label}: EPnP-RANSAC found no pose")
@@ -271,19 +307,24 @@ class OfficialFrustum(PoseSolver):
         if matches.frustum is None:
             return PoseEstimate.failed(f"{self.label}: the matches carry no frustum scores ({FRUSTUM_SCORES})")
         width, height = frame.image_size
-        if crop_offsets(width, height, self.conf) is None:
+        crop = frame_crop(frame, self.conf, LOADER_CARDS, self.label)
+        axes = network_axes(frame, LOADER_CARDS, self.label)
+        if crop_offsets(width, height, crop) is None:
             return PoseEstimate.failed(f"{self.label}: the {width} x {height} image cannot hold the crop")
         coarse = (np.asarray(matches.frustum) > 0.5).astype(np.int64)
         if not coarse.any():
             return PoseEstimate.failed(f"{self.label}: no point classified inside the frustum")
-        pc = (np.asarray(kp3d.xyz, np.float64) @ LIDAR_TO_CAMERA_AXES.T).T
-        K = crop_K(frame.K, width, height, self.conf)
+        if axes is None:  # the dataset's frame: the fixed LiDAR -> camera permutation
+            axes = np.eye(4)
+            axes[:3, :3] = LIDAR_TO_CAMERA_AXES
+            pc = (np.asarray(kp3d.xyz, np.float64) @ LIDAR_TO_CAMERA_AXES.T).T
+        else:
+            pc = transform_points(axes, np.asarray(kp3d.xyz, np.float64)).T
+        K = crop_K(frame.K, width, height, crop)
         hw = (self.conf["crop"][1], self.conf["crop"][0])
         yaw, _ = initial_guess(pc, coarse)
         starts = restarts(yaw, np.random.default_rng(frame_seed(frame)), int(self.conf["restarts"]))
         pose, _ = solve_frustum(pc, coarse, K, hw, starts, is_2d=self.conf["variant"] == "2d")
-        axes = np.eye(4)
-        axes[:3, :3] = LIDAR_TO_CAMERA_AXES
         T = pose @ axes
         return PoseEstimate(T, np.flatnonzero(projects_inside(kp3d.xyz[matches.index3d], T, K, hw)).astype(np.int64))
 

@@ -16,6 +16,10 @@ preprocessed .npy files both papers' loaders read), then a seeded random 40,960 
 loader's `downsample_np` draws (run_kitti.py keeps the first 8,500 confident points in that order). Kept differences:
 the loader's second 0.1 m voxelisation (in the camera frame) is not repeated; the network sees the cloud in camera
 axes (a fixed permutation of the LiDAR's, no extrinsic).
+
+Under the `vp2p-match` card (and `corri2p`, whose inputs are the same) the frame already is the loader's inputs: the
+grid's cells are the 160 x 512 image's own, the points the frame's 40,960 in the card's order, in camera axes already
+(no permutation), normals estimated on them (peer_inputs).
 """
 
 from __future__ import annotations
@@ -45,7 +49,10 @@ from i2pbench.layers.peer_inputs import (
     LIDAR_TO_CAMERA_AXES,
     CropCells,
     DrawnCloud,
+    frame_cloud,
+    frame_crop,
     image_input,
+    network_axes,
     point_inputs,
     voxel_cloud,
 )
@@ -59,6 +66,7 @@ NUM_POINTS = 40960  # utils/options.py input_pt_num
 # the authors' image preparation (kitti_dataset.py:306-319; options.py img_W x img_H): a conf of the grid and of the
 # matcher, which must agree (the official size pins both to these)
 CROP: dict[str, Any] = {"scale": 0.5, "crop": (512, 160)}
+LOADER_CARDS = frozenset({"vp2p-match", "corri2p"})  # the cards whose frames are the authors' loader's inputs
 
 
 class OfficialGrid(CropCells):
@@ -67,6 +75,7 @@ class OfficialGrid(CropCells):
     name = "vp2p-match-official-grid"
     default_conf: ClassVar[dict[str, Any]] = dict(CROP)
     cell_px = STRIDE
+    loader_cards = LOADER_CARDS
 
 
 class OfficialPoints(DrawnCloud):
@@ -75,6 +84,7 @@ class OfficialPoints(DrawnCloud):
     name = "vp2p-match-official-points"
     default_conf: ClassVar[dict[str, Any]] = {"max_keypoints": NUM_POINTS, "seed": 0}
     in_draw_order = True
+    loader_cards = LOADER_CARDS
 
 
 def confident_pairs(
@@ -102,14 +112,19 @@ def sample_seed(frame: Frame) -> int:
     return zlib.crc32(np.ascontiguousarray(frame.T_gt, np.float64).tobytes(), identity)
 
 
-def supervision(frame: Frame, pc: torch.Tensor, conf: Mapping[str, Any]) -> dict[str, torch.Tensor]:
-    """one frame's anchors (official/loss.py) from its true pose, for the cloud pc [3 x N] in camera axes: the
-    pose moves camera-axes points into the camera (T_gt after the axes' inverse permutation)."""
+def supervision(
+    frame: Frame, pc: torch.Tensor, conf: Mapping[str, Any], axes: np.ndarray | None = None
+) -> dict[str, torch.Tensor]:
+    """one frame's anchors (official/loss.py) from its true pose, for the cloud pc [3 x N] in network axes (`axes`
+    [4 x 4] from the frame's points, None: the fixed LiDAR -> camera permutation): the pose moving network-axes
+    points into the camera is T_gt after the axes' inverse."""
     width, height = frame.image_size
     crop_w, crop_h = conf["crop"]
     K4 = cell_camera(frame.K_true, width, height, conf, STRIDE)
-    R = frame.T_gt[:3, :3] @ LIDAR_TO_CAMERA_AXES.T.astype(np.float64)
-    t = frame.T_gt[:3, 3]
+    to_axes = np.eye(4)
+    to_axes[:3, :3] = LIDAR_TO_CAMERA_AXES
+    pose = frame.T_gt @ np.linalg.inv(to_axes if axes is None else axes)
+    R, t = pose[:3, :3], pose[:3, 3]
     seed = sample_seed(frame)
     sup = anchors(pc.numpy().astype(np.float64), K4, R, t, (crop_w // STRIDE, crop_h // STRIDE),
                   int(conf["num_kpt"]), float(conf["dist_thres"]), np.random.default_rng(seed))  # fmt: skip
@@ -157,9 +172,12 @@ class OfficialVP2PMatch(BatchedStage, Matcher):
     ) -> dict[str, torch.Tensor]:
         """the network's inputs: image [3 x 160 x 512], cloud and normals [3 x N] in camera axes, intensity [1 x N];
         with the frame's true pose (training), its anchors, each key prefixed `sup_`."""
-        inputs = {"img": image_input(frame.image, self.conf), **point_inputs(kp3d, *voxel_cloud(frame)[:2])}
+        axes = network_axes(frame, LOADER_CARDS, self.label)
+        cloud = voxel_cloud(frame) if axes is None else frame_cloud(frame, axes)
+        crop = frame_crop(frame, self.conf, LOADER_CARDS, self.label)
+        inputs = {"img": image_input(frame.image, crop), **point_inputs(kp3d, *cloud[:2], axes)}
         if frame.T_gt is not None:
-            inputs |= {SUP + k: v for k, v in supervision(frame, inputs["pc"], self.conf).items()}
+            inputs |= {SUP + k: v for k, v in supervision(frame, inputs["pc"], {**self.conf, **crop}, axes).items()}
         return {k: v.contiguous().to(device) for k, v in inputs.items()}
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -188,7 +206,8 @@ class OfficialVP2PMatch(BatchedStage, Matcher):
         if len(kp2d) == 0 or len(kp3d) == 0:  # a frame too small for the crop, or an empty scan
             return Matches.empty()
         width, height = frame.image_size
-        cells = torch.from_numpy(pixel_cells(np.asarray(kp2d.uv, np.float32), width, height, self.conf))
+        crop = frame_crop(frame, self.conf, LOADER_CARDS, self.label)
+        cells = torch.from_numpy(pixel_cells(np.asarray(kp2d.uv, np.float32), width, height, crop))
         inside = torch.nonzero(cells >= 0)[:, 0]
         if len(inside) == 0:
             return Matches.empty()
@@ -204,5 +223,5 @@ class OfficialVP2PMatch(BatchedStage, Matcher):
             inside[rows].cpu().numpy(),
             points.cpu().numpy(),
             score.float().cpu().numpy(),
-            radius_px=self.conf["radius_px"],
+            radius_px=self.conf["radius_px"] * self.conf["scale"] / crop["scale"],  # 1 px at K/4 of the crop
         )
