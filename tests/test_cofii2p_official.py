@@ -28,10 +28,11 @@ from i2pbench.testing.recipe import recipe_state
 K = np.array([[718.856, 0, 607.1928], [0, 718.856, 185.2157], [0, 0, 1]])
 
 
-def frame(width: int = 1242, height: int = 375, points: np.ndarray | None = None, T_init=None) -> Frame:
+def frame(width: int = 1242, height: int = 375, points: np.ndarray | None = None, T_init=None, inputs="") -> Frame:
+    """a frame of the dataset (`inputs` "") or one the `cofii2p` card built (`inputs` "cofii2p")."""
     points = np.zeros((0, 4), np.float32) if points is None else points
     return Frame("test", "0", np.zeros((height, width, 3), np.uint8), points, np.zeros(len(points), np.int16),
-                 np.ones(len(points), np.float32), K, None, T_init=T_init)  # fmt: skip
+                 np.ones(len(points), np.float32), K, None, T_init=T_init, inputs=inputs)  # fmt: skip
 
 
 def test_grid_pixels_are_the_fine_map_cells_under_the_frames_K():
@@ -72,7 +73,7 @@ def test_a_frame_the_cofii2p_card_built_is_taken_as_it_is():
     np.testing.assert_allclose(fine_camera(K, 512, 160, {"top_rows": 50, "scale": 0.5, "crop": (512, 160)}),
                                K * [[.5], [.5], [1]], rtol=1e-6)  # fmt: skip
     cloud = np.random.default_rng(1).uniform(-20, 20, (2048, 4)).astype(np.float32)
-    kp3d = loader_cloud(frame(512, 160, cloud, np.eye(4)), 2048, 0)
+    kp3d = loader_cloud(frame(512, 160, cloud, np.eye(4), inputs="cofii2p"), 2048, 0)
     np.testing.assert_array_equal(kp3d.index, np.arange(2048))  # its points, in the card's draw order
     np.testing.assert_array_equal(kp3d.xyz, cloud[:, :3])
 
@@ -114,7 +115,7 @@ def test_the_nuscenes_size_feeds_intensity_at_their_scale_and_the_points_themsel
     assert row["confs"]["extractor2d"]["crop"] == row["confs"]["solver"]["crop"] == (320, 160)
     cloud = np.random.default_rng(4).uniform(-20, 20, (2048, 4)).astype(np.float32)
     cloud[:, 3] = np.linspace(0, 1, 2048)
-    f = frame(320, 160, cloud, np.eye(4))  # a cofii2p-card frame: the crop, the camera-frame cloud
+    f = frame(320, 160, cloud, np.eye(4), inputs="cofii2p")  # a cofii2p-card frame: the crop, the camera-frame cloud
     kp3d = loader_cloud(f, 2048, 0)
     data, image, _ = network_inputs(f, kp3d, {**conf, "seed": 0})
     assert tuple(image.shape) == (1, 3, 160, 320)

@@ -306,3 +306,11 @@ def test_deepi2ps_frustum_solver_under_its_card_reads_the_frames_points_and_k_as
     axes[:3, :3] = LIDAR_TO_CAMERA_AXES
     np.testing.assert_allclose(theirs.T @ axes, ours.T, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(theirs.inliers, ours.inliers)
+
+
+def test_cofii2ps_points_take_only_a_cofii2p_card_frame_and_refuse_another_card_by_name():
+    stage = component("extractor3d", "cofii2p-official-points")
+    with pytest.raises(StageError, match=r"cofii2p-official-points: .*takes them from protocol 'cofii2p', but "
+                                         r"protocol 'corri2p' gives the stages its own"):  # fmt: skip
+        stage(card_frame("corri2p"))
+    assert len(stage(Protocol().apply(sensor())).xyz) == 20480  # the dataset's 600 returns, repeated as the loader

@@ -4,8 +4,9 @@ network's image, its 20,480 points with intensity and normals, and the KPConv py
 Where a frame comes from decides what is left to do. A dataset's frame under the default card is the whole scan and
 the full-size image: the scan is voxelised at 0.1 m and 20,480 voxels drawn as the loader's `downsample_np` draws them
 (every voxel repeated when there are fewer), the image halved and centre-cropped to 160 x 512. A frame the `cofii2p`
-card built (i2pbench.protocol_peer) already is the loader's: exactly 20,480 points, the 160 x 512 crop, so both are
-taken as they are (`is_loader_cloud`, `loader_crop`).
+card built (i2pbench.protocol_peer; `Frame.inputs` names it) already is the loader's: its 20,480 points and the
+160 x 512 crop are taken as they are (`is_loader_cloud`, `loader_crop`; a smaller `max_keypoints` takes a seeded
+subset of the points); another card's frame is refused by name.
 
 Axes: the loader hands the network the cloud in the camera frame (P2 @ Tr) moved by its random transform. i2pbench's
 `Frame.T_init` is camera <- the unmoved cloud's frame (the calibration under the default card, the identity under
@@ -31,6 +32,7 @@ from i2pbench.layers.peer_inputs import (
     NORMAL_RADIUS_M,
     finite_returns,
     image_input,
+    loader_frame,
     open3d_voxels,
 )
 from i2pbench.layers.point_pyramid import NEIGHBOURS, STAGES, PointPyramid, point_pyramid
@@ -42,6 +44,7 @@ CELL_PX = 2  # the fine map's stride in the crop (the network's 1/2-scale image 
 # by no loader line), x0.5, centre crop to options.py img_W x img_H
 CROP: dict[str, Any] = {"top_rows": 0, "scale": 0.5, "crop": (512, 160)}
 CAMERA_UP = (0.0, -1.0, 0.0)  # LiDAR +z in camera axes
+LOADER_CARDS = ("cofii2p",)  # the cards whose frames are the authors' loader's (i2pbench.protocol_peer)
 MIN_POINTS = NEIGHBOURS * 2 ** (STAGES - 1)  # the fewest whose coarsest level still has 128 neighbours to find
 
 
@@ -53,9 +56,10 @@ def loader_crop(width: int, height: int, crop: Mapping[str, Any]) -> dict[str, A
     return dict(crop)
 
 
-def is_loader_cloud(frame: Frame, count: int) -> bool:
-    """whether the frame's cloud already is the loader's draw of `count` points (a `cofii2p` card frame)."""
-    return len(frame.points) == count
+def is_loader_cloud(frame: Frame) -> bool:
+    """whether the frame's cloud already is the loader's draw: a `cofii2p` card frame (`Frame.inputs`); another
+    card's frame is refused by name."""
+    return loader_frame(frame, LOADER_CARDS, "cofii2p-official-points")
 
 
 def network_axes(frame: Frame) -> np.ndarray:
@@ -99,8 +103,14 @@ def voxels(frame: Frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def loader_cloud(frame: Frame, count: int, seed: int) -> Keypoints3D:
     """the `count` points the network reads, each with its nearest return's row as `index` (module docstring)."""
-    if is_loader_cloud(frame, count):
-        return Keypoints3D.from_index(frame, np.arange(count))
+    if is_loader_cloud(frame):  # the card's draw as it is; a smaller count (a small conf) a seeded subset of it
+        keep = len(frame.points) <= count
+        rows = (
+            np.arange(len(frame.points))
+            if keep
+            else np.sort(np.random.RandomState(seed).choice(len(frame.points), count, replace=False))
+        )
+        return Keypoints3D.from_index(frame, rows)
     xyz, intensity, rows = voxels(frame)
     if len(xyz) == 0:
         return Keypoints3D.from_index(frame, np.zeros(0, np.int64))

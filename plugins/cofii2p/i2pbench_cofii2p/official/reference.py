@@ -23,6 +23,7 @@ ANCHORS = ("pc_kpt_idx", "pc_outline_idx", "coarse_img_kpt_idx", "K_4", "P", "fi
 
 def pyramid(inputs: Mapping[str, np.ndarray]) -> dict[str, list[torch.Tensor] | torch.Tensor]:
     """the recorded pc_data_dict (`points_i`, `neighbors_i`, `subsampling_i`, `upsampling_i`, `feats`)."""
+
     def stack(key: str, count: int, dtype: torch.dtype) -> list[torch.Tensor]:
         return [torch.from_numpy(inputs[f"{key}_{i}"]).to(dtype) for i in range(count)]
 
