@@ -62,3 +62,52 @@ def test_shared_mlps_as_matrix_products_equal_the_1x1_convolutions_forward_and_b
     (reference * weights).sum().backward()
     torch.testing.assert_close(fast_in.grad, plain_in.grad, rtol=1e-9, atol=1e-9)
     torch.testing.assert_close(mlp[0].weight.grad, plain[0].weight.grad, rtol=1e-9, atol=1e-9)
+
+
+def official_set_abstraction(cin: int, mlp: tuple[int, ...]) -> torch.nn.Module:
+    """the official size's SA in eval mode with float64 weights and batch-norm statistics away from identity."""
+    from i2pbench_edgeregnet.official_pointnet2 import SetAbstraction
+
+    sa = SetAbstraction(cin, mlp).double().eval()
+    g = torch.Generator().manual_seed(3)
+    for bn in sa.mlp_bns:
+        for tensor in (bn.weight, bn.bias, bn.running_mean):
+            tensor.data.copy_(torch.randn(tensor.shape, generator=g, dtype=torch.float64))
+        bn.running_var.copy_(torch.rand(bn.running_var.shape, generator=g, dtype=torch.float64) + 0.5)
+    return sa
+
+
+def test_official_set_abstraction_on_each_balls_own_points_gives_the_dense_max():
+    """eval: the MLP on each ball's own points (repeats left out), in chunks, folded norms, gives the authors'
+    dense [B x S x k] computation; the chunks cut between balls (CHUNK_ROWS patched small)."""
+    from i2pbench_edgeregnet import official_pointnet2
+
+    from i2pbench.layers.pointnet2 import ball_query_torch
+
+    g = torch.Generator().manual_seed(4)
+    xyz = torch.rand(2, 400, 3, generator=g, dtype=torch.float64)
+    feats = torch.cat([xyz, torch.rand(2, 400, 1, generator=g, dtype=torch.float64)], -1)
+    centres = torch.stack([torch.randperm(400, generator=g)[:60] for _ in range(2)])
+    balls = ball_query_torch(xyz, torch.stack([xyz[b, centres[b]] for b in range(2)]), 0.3, 32)
+    counts = [len(set(row)) for row in balls.flatten(0, 1).tolist()]
+    assert min(counts) < 16 and max(counts) == 32  # short balls (padded with repeats) and full ones
+    sa = official_set_abstraction(4, (16, 16, 24))
+    with torch.no_grad(), pytest.MonkeyPatch.context() as patch:
+        patch.setattr(official_pointnet2, "CHUNK_ROWS", 100)
+        centroids, ragged = sa(xyz, feats, centres, balls)
+        dense_centroids, dense = sa.dense(xyz, feats, centres, balls)
+    assert torch.equal(centroids, dense_centroids)
+    torch.testing.assert_close(ragged, dense, rtol=1e-12, atol=1e-12)
+    assert ragged.shape == (2, 60, 24) and (ragged > 0).any() and (ragged == 0).any()  # ReLU'd maxima, not zeros
+
+
+def test_official_set_abstraction_trains_on_every_slot():
+    """with batch statistics the repeats of a short ball count in the norm (as in the authors' code): training
+    takes the dense path, and its output differs from the eval path's."""
+    g = torch.Generator().manual_seed(5)
+    xyz = torch.rand(1, 50, 3, generator=g, dtype=torch.float64)
+    balls = torch.tensor([[[0, 3, 7, 0], [1, 1, 1, 1], [2, 9, 11, 20]]])
+    sa = official_set_abstraction(3, (8,)).train()
+    trained = sa(xyz, xyz, balls[..., 0], balls)[1]
+    torch.testing.assert_close(trained, sa.dense(xyz, xyz, balls[..., 0], balls)[1], rtol=0, atol=0)
+    assert not torch.allclose(trained, sa.eval()(xyz, xyz, balls[..., 0], balls)[1])
