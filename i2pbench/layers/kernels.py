@@ -61,13 +61,18 @@ def _cell_keys(xyz: np.ndarray, lo: np.ndarray, size: float, dims: np.ndarray) -
 
 
 @numba.njit(cache=True, nogil=True)
-def _ball_query(xyz: np.ndarray, centres: np.ndarray, radius: float, k: int, out: np.ndarray) -> int:
+def _ball_query(
+    xyz: np.ndarray, centres: np.ndarray, radius: float, k: int, out: np.ndarray, sort_below: float = 4.0
+) -> int:
     """fills out [C x k] with the first k indices inside each ball (ascending, padded with the first); returns the
     number of empty balls.
 
-    Points are binned in cells of side ~radius, each cell's points kept in ascending index order, so a ball reads its
-    27 neighbouring cells merged in index order and stops at the k-th point inside: dense balls (a normalised KITTI
-    ball is ~8 m wide) end early, sparse ones read only their few neighbours.
+    Points are binned in cells of side ~radius, each cell's points kept in ascending index order. A ball whose 27
+    neighbouring cells hold few points (at most `sort_below` x k) tests them all and sorts the indices inside; a
+    ball in a dense region reads the cells merged in index order and stops at the k-th point inside. Both give the
+    same ball, each the faster where it is taken (one thread, the official EdgeRegNet's SA1 + SA2 balls against the
+    merge alone: 111-124 -> 89-104 ms on the reference KITTI frame, 137-144 -> 63-64 ms on the synthetic KITTI-sized
+    one; sort_below tuned over 0-16 on both).
     """
     size = radius * (1 + 1e-5)  # a point within radius is at most one cell away despite rounding in the division
     lo = np.empty(3)
@@ -80,38 +85,58 @@ def _ball_query(xyz: np.ndarray, centres: np.ndarray, radius: float, k: int, out
     sorted_keys = keys[order]
     r2 = np.float32(radius) * np.float32(radius)
     heads, ends, home = np.empty(27, np.int64), np.empty(27, np.int64), np.empty(3, np.int64)
+    inside = np.empty(xyz.shape[0], np.int64)
     empty = 0
     for c in range(centres.shape[0]):
         for a in range(3):
             home[a] = int(np.floor((centres[c, a] - lo[a]) / size))
-        cells = 0
+        cells, candidates = 0, 0
         for i in range(max(home[0] - 1, 0), min(home[0] + 2, dims[0])):
             for j in range(max(home[1] - 1, 0), min(home[1] + 2, dims[1])):
                 for m in range(max(home[2] - 1, 0), min(home[2] + 2, dims[2])):
                     key = (i * dims[1] + j) * dims[2] + m
                     heads[cells] = np.searchsorted(sorted_keys, key, side="left")
                     ends[cells] = np.searchsorted(sorted_keys, key, side="right")
+                    candidates += ends[cells] - heads[cells]
                     cells += heads[cells] < ends[cells]
         count = 0
-        while count < k:
-            best, point = -1, xyz.shape[0]
+        if candidates <= sort_below * k:
             for q in range(cells):
-                if heads[q] < ends[q] and order[heads[q]] < point:
-                    best, point = q, order[heads[q]]
-            if best < 0:
-                break
-            heads[best] += 1
-            dx = xyz[point, 0] - centres[c, 0]
-            dy = xyz[point, 1] - centres[c, 1]
-            dz = xyz[point, 2] - centres[c, 2]
-            if dx * dx + dy * dy + dz * dz <= r2:
-                out[c, count] = point
-                count += 1
+                for h in range(heads[q], ends[q]):
+                    point = order[h]
+                    if _inside(xyz, point, centres, c, r2):
+                        inside[count] = point
+                        count += 1
+            if count > 0:
+                first = np.sort(inside[:count])
+                count = min(count, k)
+                out[c, :count] = first[:count]
+        else:
+            while count < k:
+                best, point = -1, xyz.shape[0]
+                for q in range(cells):
+                    if heads[q] < ends[q] and order[heads[q]] < point:
+                        best, point = q, order[heads[q]]
+                if best < 0:
+                    break
+                heads[best] += 1
+                if _inside(xyz, point, centres, c, r2):
+                    out[c, count] = point
+                    count += 1
         if count == 0:
             empty += 1
         else:
             out[c, count:] = out[c, 0]
     return empty
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _inside(xyz: np.ndarray, point: int, centres: np.ndarray, c: int, r2: np.float32) -> bool:
+    """whether xyz[point] lies within the ball around centres[c], squared distance in float32, x + y then + z."""
+    dx = xyz[point, 0] - centres[c, 0]
+    dy = xyz[point, 1] - centres[c, 1]
+    dz = xyz[point, 2] - centres[c, 2]
+    return dx * dx + dy * dy + dz * dz <= r2
 
 
 def ball_query(xyz: np.ndarray, centres: np.ndarray, radius: float, nsample: int) -> np.ndarray:
