@@ -77,21 +77,23 @@ def official_set_abstraction(cin: int, mlp: tuple[int, ...]) -> torch.nn.Module:
     return sa
 
 
-def test_official_set_abstraction_on_each_balls_own_points_gives_the_dense_max():
-    """eval: the MLP on each ball's own points (repeats left out), in chunks, folded norms, gives the authors'
-    dense [B x S x k] computation; the chunks cut between balls (CHUNK_ROWS patched small)."""
+@pytest.mark.parametrize("cin, mlp", [(4, (16, 16, 24)), (21, (8, 16, 24))], ids=["grouped-input", "per-point"])
+def test_official_set_abstraction_on_each_balls_own_points_gives_the_dense_max(cin, mlp):
+    """eval: the MLP on each ball's own points (repeats left out), balls of like size in blocks (CHUNK_ROWS patched
+    small: many blocks), folded norms, gives the authors' dense [B x S x k] computation; with features wider than
+    the first layer (SA2's case), that layer runs per point and per centre."""
     from i2pbench_edgeregnet import official_pointnet2
 
     from i2pbench.layers.pointnet2 import ball_query_torch
 
     g = torch.Generator().manual_seed(4)
     xyz = torch.rand(2, 400, 3, generator=g, dtype=torch.float64)
-    feats = torch.cat([xyz, torch.rand(2, 400, 1, generator=g, dtype=torch.float64)], -1)
+    feats = torch.cat([xyz, torch.rand(2, 400, cin - 3, generator=g, dtype=torch.float64)], -1)
     centres = torch.stack([torch.randperm(400, generator=g)[:60] for _ in range(2)])
     balls = ball_query_torch(xyz, torch.stack([xyz[b, centres[b]] for b in range(2)]), 0.3, 32)
     counts = [len(set(row)) for row in balls.flatten(0, 1).tolist()]
     assert min(counts) < 16 and max(counts) == 32  # short balls (padded with repeats) and full ones
-    sa = official_set_abstraction(4, (16, 16, 24))
+    sa = official_set_abstraction(cin, mlp)
     with torch.no_grad(), pytest.MonkeyPatch.context() as patch:
         patch.setattr(official_pointnet2, "CHUNK_ROWS", 100)
         centroids, ragged = sa(xyz, feats, centres, balls)
