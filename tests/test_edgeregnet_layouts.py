@@ -113,3 +113,25 @@ def test_official_set_abstraction_trains_on_every_slot():
     trained = sa(xyz, xyz, balls[..., 0], balls)[1]
     torch.testing.assert_close(trained, sa.dense(xyz, xyz, balls[..., 0], balls)[1], rtol=0, atol=0)
     assert not torch.allclose(trained, sa.eval()(xyz, xyz, balls[..., 0], balls)[1])
+
+
+@pytest.mark.parametrize("height", [64, 77, 100, 33])
+def test_official_image_cnn_in_strips_gives_the_whole_image_layers(height):
+    """the official SuperPoint's full-resolution block in strips of STRIP_ROWS rows gives the layers run on the
+    whole image one after the other (the authors' forward), at heights that are and are not multiples of the strip,
+    odd ones included (the pool drops the last row)."""
+    import torch.nn.functional as F
+    from i2pbench_edgeregnet.official_superpoint import STRIP_ROWS, VGG, OfficialSuperPoint
+
+    encoder = OfficialSuperPoint().eval()
+    image = torch.randn(2, 1, height, 72, generator=torch.Generator().manual_seed(6))
+    with torch.no_grad():
+        x = image
+        for i, (name, _, _) in enumerate(VGG):
+            x = F.relu(getattr(encoder, name)(x))
+            if i in (1, 3, 5):
+                x = F.max_pool2d(x, 2, 2)
+        expected = F.normalize(encoder.convDb(F.relu(encoder.convDa(x))), p=2, dim=1)
+        ours = encoder.dense(image)
+    assert height > STRIP_ROWS and ours.shape == expected.shape == (2, 256, height // 8, 9)
+    torch.testing.assert_close(ours, expected, rtol=0, atol=1e-6)
