@@ -135,3 +135,23 @@ def test_official_image_cnn_in_strips_gives_the_whole_image_layers(height):
         ours = encoder.dense(image)
     assert height > STRIP_ROWS and ours.shape == expected.shape == (2, 256, height // 8, 9)
     torch.testing.assert_close(ours, expected, rtol=0, atol=1e-6)
+
+
+def test_official_log_assignment_in_blocks_gives_the_whole_matrix_form():
+    """without gradients the official log assignment is written block by block (BLOCK patched small: blocks of
+    whole columns, then of whole rows, and a remainder); it gives the authors' whole-matrix expression, dustbins and
+    corner included; with gradients the whole-matrix form runs and the gradient reaches sim."""
+    from i2pbench_edgeregnet import official_matching
+
+    g = torch.Generator().manual_seed(7)
+    sim = torch.randn(2, 45, 38, generator=g) * 6
+    z3d, z2d = torch.randn(2, 45, generator=g), torch.randn(2, 38, generator=g)
+    expected = official_matching.whole_log_assignment(sim, z3d, z2d)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(official_matching, "BLOCK", 16)
+        ours = official_matching.log_assignment(sim, z3d, z2d)
+        torch.testing.assert_close(ours, expected, rtol=0, atol=1e-5)
+        assert ours[:, -1, -1].eq(0).all() and ours[:, :-1, :-1].exp().sum() > 1  # corner; a real assignment
+        trained = sim.clone().requires_grad_()
+        official_matching.log_assignment(trained, z3d, z2d)[:, :-1, :-1].sum().backward()
+    assert trained.grad is not None and trained.grad.abs().sum() > 0
