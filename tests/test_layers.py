@@ -59,7 +59,7 @@ LAYER_CODE = {
     "cluster_max": (0, "af4852f06a08"),
     "frame_norm": (0, "b360eba841ba"),
     "global_pointnet2": (0, "8747a5b05659"),  # BatchedStage, seeded_cloud, deep merge_conf: same outputs
-    "kernels": (1, "ab733f454962"),  # FPS as the authors' PointNet++ (issue 39); sparse balls sorted: same balls
+    "kernels": (1, "2aab15a2d71f"),  # FPS as the authors' PointNet++ (issue 39); grid-pruned FPS, ball query: same
     "mlp": (0, "1e8fb86b56f9"),
     "nodes": (0, "57e284127b45"),
     "peer_inputs": (0, "0b74d4a1d908"),  # moved from the CorrI2P, DeepI2P, VP2P-Match official stages: same outputs
