@@ -35,6 +35,7 @@ import torch.nn.functional as F
 from edgeregnet_latency import kitti_sized_frame  # this folder is on sys.path when the script runs
 from torch.utils.flop_counter import FlopCounterMode
 
+from i2pbench.components import STAGES
 from i2pbench.grid import base_combinations, expand
 from i2pbench.pipeline import Pipeline
 from i2pbench.registry.build import default_registry
@@ -128,7 +129,7 @@ def stage_calls(pipeline: Pipeline, n_keypoints: int) -> dict[str, Callable[[], 
     for kind in LEARNED:
         stage = pipeline.stages[kind]
         calls[kind] = functools.partial(call_stage, stage, frame, inputs)
-        inputs = inputs.after(calls[kind]())
+        inputs = STAGES[kind].put(inputs, calls[kind]().output)
     return calls
 
 

@@ -164,3 +164,19 @@ def test_a_half_size_image_samples_like_stride_16():
     torch.testing.assert_close(sample_descriptors(fmap, uv[None], 16)[0], expected)
     u_resized = (uv[:, :1] + 0.5) * 0.5 - 0.5
     torch.testing.assert_close(sample_descriptors(fmap, uv[None], 16)[0, :, 0], (u_resized[:, 0] - 3.5) / 8)
+
+
+def test_official_three_nn_is_the_first_three_of_a_stable_sort():
+    """the official FP's 3-NN (4 candidates ordered, a tied row sorted whole) on a grid where many distances tie:
+    the same distances and indices as the first 3 of the stable sort of each row (lower index first at a tie)."""
+    from i2pbench_edgeregnet.official_pointnet2 import square_distance
+    from i2pbench_edgeregnet.official_pointnet2 import three_nn as official_three_nn
+
+    g = torch.Generator().manual_seed(0)
+    known = torch.randint(0, 4, (2, 300, 3), generator=g).float() / 4  # 64 sites, each repeated: ties everywhere
+    xyz = torch.randint(0, 8, (2, 200, 3), generator=g).float() / 8
+    dist, index = official_three_nn(xyz, known)
+    full = square_distance(xyz, known).sort(dim=-1, stable=True)
+    assert torch.equal(dist, full.values[..., :3]) and torch.equal(index, full.indices[..., :3])
+    assert (full.values[..., 2] == full.values[..., 3]).any()  # the whole-row fallback was needed
+    assert official_three_nn(xyz[:, :5], known[:, :2])[1].shape == (2, 5, 2)  # fewer than 3 known points

@@ -88,3 +88,20 @@ def test_official_mlp_folded_norm_equals_the_norm():
         assert expected.abs().max() > 0.1  # the ReLUs leave something to compare
         assert torch.allclose(run_mlp(head, x), expected, atol=1e-5)  # norms folded into the Linears
         assert torch.allclose(head(x), expected, atol=1e-5)  # ChannelNorm's own eval path
+
+
+@pytest.mark.parametrize("cross", [False, True])
+def test_official_layer_eval_folds_the_merge_into_the_mlp(layer, cross):
+    """eval: the stacked q/k/v products and the merge folded with the first Linear and its norm give the authors'
+    steps one by one (separate projections, attention, merge, concatenation, the MLP with its own norm), float64."""
+    layer = layer.double().eval()
+    d3, d2 = torch.randn(1, N, DIM, dtype=torch.float64), torch.randn(1, N, DIM, dtype=torch.float64)
+    source = d2 if cross else d3
+    heads = [p(t).unflatten(-1, (HEADS, -1)).transpose(1, 2) for p, t in zip(
+        (layer.q, layer.k, layer.v), (d3, source, source), strict=True)]  # fmt: skip
+    message = torch.nn.functional.scaled_dot_product_attention(*heads).transpose(1, 2).flatten(2)
+    with torch.no_grad():
+        expected = channels_first(layer.mlp, torch.cat([d3, layer.merge(message)], -1))
+        ours = layer.update(d3, source, None)
+    assert expected.abs().max() > 0.1
+    torch.testing.assert_close(ours, expected, rtol=1e-12, atol=1e-12)

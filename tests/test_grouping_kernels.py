@@ -54,6 +54,23 @@ def test_fps_on_exactly_representable_points_is_identical_including_ties():
     )
 
 
+def test_fps_skipping_cells_gives_the_plain_loops_indices(real_cloud):
+    """the compiled FPS skips the grid cells a new centroid cannot bring closer: the indices of the plain loop
+    computing every distance, on a real scan (cells of 8 and of 32 points) and past the last point (repeats)."""
+    from i2pbench.layers import kernels
+
+    x, y, z = (np.ascontiguousarray(c) for c in real_cloud[0].numpy().T)
+    plain, skipping = np.empty(3000, np.int64), np.empty(3000, np.int64)
+    kernels._fps(x, y, z, 3000, 11, plain)
+    for per_cell in (8, 32):
+        kernels._fps_cells(x, y, z, 3000, 11, skipping, per_cell)
+        np.testing.assert_array_equal(skipping, plain)
+    tiny = np.float32([0.0, 1.0, 1.0, 3.0])
+    kernels._fps(tiny, tiny, tiny, 6, 2, plain[:6])
+    kernels._fps_cells(tiny, tiny, tiny, 6, 2, skipping[:6], 1)
+    np.testing.assert_array_equal(skipping[:6], plain[:6])  # a duplicate point and repeats once all are taken
+
+
 def test_ball_query_gives_the_reference_balls_except_at_the_radius_within_rounding(real_cloud):
     centres = gather(real_cloud, pointnet2.farthest_point_sampling(real_cloud, 2048))
     compiled = pointnet2.ball_query(real_cloud, centres, 0.1, 32)[0].numpy()

@@ -60,7 +60,7 @@ LAYER_CODE = {
     "epropnp": (0, "76452d0c92bd"),  # EPro-PnP's Monte-Carlo pose loss (issue 40, VP2P-Match's training)
     "frame_norm": (0, "b360eba841ba"),
     "global_pointnet2": (0, "8747a5b05659"),  # BatchedStage, seeded_cloud, deep merge_conf: same outputs
-    "kernels": (1, "4a6546946f55"),  # FPS sums rounded squares unfused, as the authors' PointNet++ (issue 39)
+    "kernels": (1, "2aab15a2d71f"),  # FPS as the authors' PointNet++ (issue 39); grid-pruned FPS, ball query: same
     "kpconv": (0, "afae9f47a5ac"),  # KPConv of CoFiI2P's official size (issue 39)
     "mlp": (0, "1e8fb86b56f9"),
     "nodes": (0, "57e284127b45"),

@@ -105,10 +105,28 @@ class AttentionalPropagation(nn.Module):
 
     def update(self, x: torch.Tensor, source: torch.Tensor, mask: torch.Tensor | None, groups: int = 1) -> torch.Tensor:
         """x [B x N x D], source [B x M x D], SDPA mask over source or None -> MLP([x, message]) [B x N x D]."""
-        q, k, v = (p(t).unflatten(-1, (self.heads, -1)).transpose(1, 2) for p, t in zip(
-            (self.q, self.k, self.v), (x, source, source), strict=True))  # fmt: skip
+        q, k, v = (t.unflatten(-1, (self.heads, -1)).transpose(1, 2) for t in self.project(x, source))
         message = F.scaled_dot_product_attention(q, k, v, attn_mask=mask).transpose(1, 2).flatten(2)
-        return run_mlp(self.mlp, torch.cat([x, self.merge(message)], -1), groups)
+        first, norm, _, last = self.mlp
+        if norm.training:
+            return run_mlp(self.mlp, torch.cat([x, self.merge(message)], -1), groups)
+        # eval: merge, the first Linear and its norm as one linear map of [x, message]: 14% fewer FLOPs in the MLP
+        scale, shift = norm_affine(norm)
+        weight, bias = first.weight * scale[:, None], first.bias * scale + shift
+        own, merged = weight.split(x.shape[-1], 1)
+        weight, bias = torch.cat([own, merged @ self.merge.weight], 1), torch.addmv(bias, merged, self.merge.bias)
+        return F.linear(F.linear(torch.cat([x, message], -1), weight, bias).relu_(), last.weight, last.bias)
+
+    def project(self, x: torch.Tensor, source: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """q(x), k(source), v(source) [B x N x D], in one product where source is x and one for k and v else."""
+        if source is x:
+            return stacked(x, self.q, self.k, self.v).chunk(3, -1)
+        return self.q(x), *stacked(source, self.k, self.v).chunk(2, -1)
+
+
+def stacked(x: torch.Tensor, *layers: nn.Linear) -> torch.Tensor:
+    """the Linear layers' outputs on x side by side, from one product."""
+    return F.linear(x, torch.cat([layer.weight for layer in layers]), torch.cat([layer.bias for layer in layers]))
 
 
 def full_mask(mask: torch.Tensor | None, side: torch.Tensor) -> torch.Tensor:

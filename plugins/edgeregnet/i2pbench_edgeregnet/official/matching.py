@@ -40,6 +40,8 @@ from i2pbench.api import (
 from ..loss import PADDED
 from .attention import ChannelNorm
 
+BLOCK = 256  # rows or columns of the log assignment per pass without gradients: [B x 3000 x 256] stays in cache
+
 
 def head(widths: tuple[int, ...]) -> nn.Sequential:
     """1x1 convs without bias (channels-last Linear), BatchNorm and ReLU after each but the last of two or more."""
@@ -51,7 +53,29 @@ def head(widths: tuple[int, ...]) -> nn.Sequential:
 
 def log_assignment(sim: torch.Tensor, z3d: torch.Tensor, z2d: torch.Tensor) -> torch.Tensor:
     """LightGlue's `sigmoid_log_double_softmax`: sim [B x M3 x M2], matchability logits [B x M3], [B x M2] ->
-    log assignment with dustbins [B x M3+1 x M2+1] (the corner 0)."""
+    log assignment with dustbins [B x M3+1 x M2+1] (the corner 0).
+
+    Without gradients it is written into its output BLOCK whole columns, then BLOCK whole rows at a time: a
+    log-softmax of whole columns (rows) is that of the matrix, and the sums are the authors' (row + column, then
+    the matchabilities: floating-point addition is commutative), so the values are the same; the six [B x M3 x M2]
+    temporaries of the whole-matrix form (36 MB each at 3,000 + 3,000, too large for the allocator to keep, so
+    written to fresh pages every frame) are not made."""
+    if sim.requires_grad:
+        return whole_log_assignment(sim, z3d, z2d)
+    m3, m2 = sim.shape[1:]
+    out = sim.new_empty(len(sim), m3 + 1, m2 + 1)
+    inner = out[:, :m3, :m2]
+    for j in range(0, m2, BLOCK):
+        inner[:, :, j : j + BLOCK] = F.log_softmax(sim[:, :, j : j + BLOCK], 1)
+    rows, cols = F.logsigmoid(z3d)[:, :, None], F.logsigmoid(z2d)[:, None]
+    for i in range(0, m3, BLOCK):
+        inner[:, i : i + BLOCK].add_(F.log_softmax(sim[:, i : i + BLOCK], 2)).add_(rows[:, i : i + BLOCK]).add_(cols)
+    out[:, :m3, m2], out[:, m3, :m2], out[:, m3, m2] = F.logsigmoid(-z3d), F.logsigmoid(-z2d), 0
+    return out
+
+
+def whole_log_assignment(sim: torch.Tensor, z3d: torch.Tensor, z2d: torch.Tensor) -> torch.Tensor:
+    """`log_assignment` as the authors write it, on whole matrices (the path with gradients)."""
     scores = F.log_softmax(sim, 2) + F.log_softmax(sim, 1) + F.logsigmoid(z3d)[:, :, None] + F.logsigmoid(z2d)[:, None]
     scores = torch.cat([scores, F.logsigmoid(-z3d)[:, :, None]], 2)
     return torch.cat([scores, F.pad(F.logsigmoid(-z2d), (0, 1))[:, None]], 1)
