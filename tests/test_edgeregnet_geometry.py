@@ -169,8 +169,8 @@ def test_a_half_size_image_samples_like_stride_16():
 def test_official_three_nn_is_the_first_three_of_a_stable_sort():
     """the official FP's 3-NN (4 candidates ordered, a tied row sorted whole) on a grid where many distances tie:
     the same distances and indices as the first 3 of the stable sort of each row (lower index first at a tie)."""
-    from i2pbench_edgeregnet.official_pointnet2 import square_distance
-    from i2pbench_edgeregnet.official_pointnet2 import three_nn as official_three_nn
+    from i2pbench_edgeregnet.official.pointnet2 import square_distance
+    from i2pbench_edgeregnet.official.pointnet2 import three_nn as official_three_nn
 
     g = torch.Generator().manual_seed(0)
     known = torch.randint(0, 4, (2, 300, 3), generator=g).float() / 4  # 64 sites, each repeated: ties everywhere

@@ -66,7 +66,7 @@ def test_shared_mlps_as_matrix_products_equal_the_1x1_convolutions_forward_and_b
 
 def official_set_abstraction(cin: int, mlp: tuple[int, ...]) -> torch.nn.Module:
     """the official size's SA in eval mode with float64 weights and batch-norm statistics away from identity."""
-    from i2pbench_edgeregnet.official_pointnet2 import SetAbstraction
+    from i2pbench_edgeregnet.official.pointnet2 import SetAbstraction
 
     sa = SetAbstraction(cin, mlp).double().eval()
     g = torch.Generator().manual_seed(3)
@@ -82,7 +82,7 @@ def test_official_set_abstraction_on_each_balls_own_points_gives_the_dense_max(c
     """eval: the MLP on each ball's own points (repeats left out), balls of like size in blocks (CHUNK_ROWS patched
     small: many blocks), folded norms, gives the authors' dense [B x S x k] computation; with features wider than
     the first layer (SA2's case), that layer runs per point and per centre."""
-    from i2pbench_edgeregnet import official_pointnet2
+    from i2pbench_edgeregnet.official import pointnet2 as official_pointnet2
 
     from i2pbench.layers.pointnet2 import ball_query_torch
 
@@ -121,7 +121,7 @@ def test_official_image_cnn_in_strips_gives_the_whole_image_layers(height):
     whole image one after the other (the authors' forward), at heights that are and are not multiples of the strip,
     odd ones included (the pool drops the last row)."""
     import torch.nn.functional as F
-    from i2pbench_edgeregnet.official_superpoint import STRIP_ROWS, VGG, OfficialSuperPoint
+    from i2pbench_edgeregnet.official.superpoint import STRIP_ROWS, VGG, OfficialSuperPoint
 
     encoder = OfficialSuperPoint().eval()
     image = torch.randn(2, 1, height, 72, generator=torch.Generator().manual_seed(6))
@@ -141,7 +141,7 @@ def test_official_log_assignment_in_blocks_gives_the_whole_matrix_form():
     """without gradients the official log assignment is written block by block (BLOCK patched small: blocks of
     whole columns, then of whole rows, and a remainder); it gives the authors' whole-matrix expression, dustbins and
     corner included; with gradients the whole-matrix form runs and the gradient reaches sim."""
-    from i2pbench_edgeregnet import official_matching
+    from i2pbench_edgeregnet.official import matching as official_matching
 
     g = torch.Generator().manual_seed(7)
     sim = torch.randn(2, 45, 38, generator=g) * 6
