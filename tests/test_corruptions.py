@@ -16,19 +16,19 @@ import toy_plugin
 
 from i2pbench.api import Corruption, hookimpl
 from i2pbench.boards import leaderboard
-from i2pbench.corruptions import CorruptionError
+from i2pbench.corruptions.base import CorruptionError
 from i2pbench.errors import I2PBenchError, PluginError
-from i2pbench.grid import protocols
-from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry, default_registry
 from i2pbench.registry.listing import components_of
 from i2pbench.report.rundir import resolved
 from i2pbench.runs.executors import run_grid
+from i2pbench.runs.grid import protocols
 from i2pbench.runs.jobs import frame_key, prepare
 from i2pbench.runs.store import ResultsStore
 from i2pbench.runs.upstream import StoredUpstream
 from i2pbench.scoring.metrics import true_matches
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination, Pipeline
 from i2pbench.testing.frames import R_CAM_LIDAR, Scene, _image, _lidar
 from i2pbench.types import SensorFrame
 

@@ -17,12 +17,12 @@ from i2pbench_classic.matchers import OracleMatcher
 from i2pbench.boards import leaderboard
 from i2pbench.cli import main
 from i2pbench.data.kitti import KittiOdometry
-from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry, default_registry
 from i2pbench.runs import frames
 from i2pbench.runs.executors import run_grid
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination, Pipeline
 
 STAGES = {"extractor2d": "canny", "extractor3d": "depth", "matcher": "oracle"}
 FIRST = Combination({**STAGES, "solver": "epnp-ransac"})

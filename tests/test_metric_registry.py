@@ -12,14 +12,14 @@ from i2pbench.boards import leaderboard, uncertainty
 from i2pbench.boards.regression_gate import compare, parse_tolerances
 from i2pbench.cli import main
 from i2pbench.errors import PluginError
-from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.protocol import Protocol
 from i2pbench.registry import build
 from i2pbench.registry.build import build_registry
 from i2pbench.registry.listing import components_of
 from i2pbench.runs.jobs import frame_key, prepare, upstream_key
 from i2pbench.runs.store import ResultsStore
 from i2pbench.scoring.installed import by_name
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination, Pipeline
 from i2pbench.training.config import TrainConfig
 from i2pbench.training.loop import Trainer
 

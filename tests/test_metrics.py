@@ -7,9 +7,9 @@ import pytest
 from conftest import SAMPLE_DATA, needs_sample
 from scipy.spatial.transform import Rotation
 
-from i2pbench.geometry import make_transform, rot_z
-from i2pbench.protocol import Protocol
+from i2pbench.geometry.transforms import make_transform, rot_z
 from i2pbench.scoring.pose import kept, pose_errors
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.scoring.rules import ScoringRules
 from i2pbench.scoring.score import summarize
 

@@ -24,12 +24,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from i2pbench.geometry import invert
-from i2pbench.protocol import Protocol
+from i2pbench.geometry.transforms import invert
 from i2pbench.registry.build import build_registry
 from i2pbench.registry.hookspecs import hookimpl
 from i2pbench.scoring import cards, installed
 from i2pbench.scoring.cards import NATIVE, ProtocolCard
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.scoring.rules import ScoringRules
 from i2pbench.scoring.score import frame_errors, score
 
@@ -207,7 +207,7 @@ def test_an_unknown_protocol_suggests_the_closest():
 
 
 def test_the_cards_default_name_and_version_are_the_protocols():
-    from i2pbench import protocol
+    from i2pbench.scoring import protocol
 
     assert (cards.DEFAULT_NAME, cards.DEFAULT_VERSION) == (protocol.DEFAULT_NAME, protocol.DEFAULT_VERSION)
 

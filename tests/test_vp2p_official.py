@@ -19,7 +19,7 @@ from i2pbench.boards import leaderboard
 from i2pbench.cli import main
 from i2pbench.registry.build import default_registry
 from i2pbench.testing.recipe import recipe_state
-from i2pbench.weights import load_checkpoint
+from i2pbench.weights.checkpoints import load_checkpoint
 
 SHAPES = Path(__file__).parent / "data" / "vp2p_reference" / "state_dict_shapes.json"
 
@@ -123,8 +123,8 @@ def test_the_preset_runs_a_kitti_frame_untrained_and_says_so(shared_data, tmp_pa
 
 def test_training_the_official_size_is_refused_as_having_no_loss_yet():
     from i2pbench.errors import PluginError
-    from i2pbench.grid import expand
-    from i2pbench.pipeline import Pipeline
+    from i2pbench.runs.grid import expand
+    from i2pbench.stages.pipeline import Pipeline
     from i2pbench.training.trainable import check_trainable
 
     registry = default_registry()

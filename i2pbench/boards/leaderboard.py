@@ -17,8 +17,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..components import STAGE_ORDER
-from ..protocol import Protocol
 from ..scoring import installed as installed_metrics
 from ..scoring import metrics as metric_registry
 from ..scoring import recall
@@ -38,6 +36,8 @@ from ..scoring.metrics import (  # noqa: F401 (the board's column names, read fr
     Metric,
 )
 from ..scoring.pose import kept
+from ..scoring.protocol import Protocol
+from ..stages.components import STAGE_ORDER
 from . import uncertainty
 
 GROUP = ["dataset", "split", "combination", "weights"]

@@ -24,7 +24,7 @@ from .options import (
 )
 
 if TYPE_CHECKING:
-    from ..results import RunResult
+    from .results import RunResult
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -141,7 +141,7 @@ def _publish(args, registry, records, protocol, invocation, threads: int, wall_s
     CLI, not for a Python caller: `echo`), then written to `stem`."""
     from ..boards import leaderboard
     from ..execution import progress
-    from ..results import RunResult
+    from .results import RunResult
     from .run_notes import failure_reasons, latency_reused
 
     board = leaderboard.build(records, protocol)
@@ -215,7 +215,7 @@ def _protocols(registry, base, args: argparse.Namespace, dataset, frame_ids: lis
     corruption the run's frames cannot take (time-offset without ego motion) is left out of `all` with a note, and
     refused before any frame runs when named."""
     from ..errors import PluginError
-    from ..grid import ALL, CLEAN, protocols
+    from ..runs.grid import ALL, CLEAN, protocols
 
     specs = [*([CLEAN, ALL] if args.robustness else []), *(args.corruption or [])]
     if not specs:

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 import torch
 
-from ..components import Extractor2D, Extractor3D
+from ..stages.components import Extractor2D, Extractor3D
 from ..types import Frame, Keypoints2D, Keypoints3D
 from .pointnet2 import frame_seed
 

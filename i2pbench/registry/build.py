@@ -15,8 +15,8 @@ from typing import Any
 
 import pluggy
 
-from ..components import STAGES
 from ..errors import PluginError
+from ..stages.components import STAGES
 from .catalog import CLASS_KINDS, Preset, Registry
 from .lazy import registered_class
 from .loading import BUILTIN_DISTRIBUTION, make_plugin_manager, plugin_alone, plugin_selection, registrations, warn

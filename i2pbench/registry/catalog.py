@@ -13,15 +13,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from ..components import STAGE_BASES, Component
 from ..errors import PluginError
+from ..stages.components import STAGE_BASES, Component
 from .lazy import LazyComponent, class_path, same_class
 from .loading import PluginInfo
 from .methods import Method, Row
 from .table import NAME_CLASH, Table
 
 if TYPE_CHECKING:  # imported to check a class: listing what was registered by path needs neither
-    from ..corruptions import Corruption
+    from ..corruptions.base import Corruption
     from ..data.base import Dataset
     from ..scoring.cards import ProtocolCard
     from ..scoring.metrics import Metric

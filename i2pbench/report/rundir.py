@@ -17,10 +17,10 @@ import numpy as np
 import pandas as pd
 
 from ..errors import DataError, I2PBenchError
-from ..protocol import Protocol
 from ..runs.evaluate import readable
 from ..runs.invocation import history
 from ..runs.store import ResultsStore
+from ..scoring.protocol import Protocol
 from ..types import Frame
 
 RUN_META = "run.json"  # a run's metadata file, when the harness writes one beside invocations/

@@ -22,10 +22,10 @@ import pandas as pd
 from .. import __version__
 from ..boards import leaderboard
 from ..errors import I2PBenchError
-from ..protocol import Protocol
 from ..scoring import installed as installed_metrics
 from ..scoring.metrics import Scored
 from ..scoring.pose import FAILED, pose_errors
+from ..scoring.protocol import Protocol
 from .invocation import history, record_file, written_by
 from .store import ResultsStore
 

@@ -30,9 +30,9 @@ from ..data.base import Dataset
 from ..errors import I2PBenchError
 from ..execution.interrupts import Interrupted, ignore_held_sigint, sigint_held
 from ..execution.lifeline import exit_with_parent
-from ..pipeline import Combination
-from ..protocol import Protocol
 from ..registry.catalog import Registry
+from ..scoring.protocol import Protocol
+from ..stages.pipeline import Combination
 from .jobs import Job, frame_key, labels, prepare
 from .store import ResultsStore
 from .tasks import Deliver, Executor, Progress, Result, Task, Work

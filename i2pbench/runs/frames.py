@@ -22,15 +22,15 @@ from typing import Any
 
 import numpy as np
 
-from ..components import STAGE_ORDER
-from ..corruptions import CorruptionError
+from ..corruptions.base import CorruptionError
 from ..data.base import Dataset
 from ..errors import I2PBenchError
-from ..pipeline import FrameOutcome
-from ..protocol import Protocol
 from ..scoring.installed import record_values
 from ..scoring.metrics import Scored
 from ..scoring.pose import pose_errors
+from ..scoring.protocol import Protocol
+from ..stages.components import STAGE_ORDER
+from ..stages.pipeline import FrameOutcome
 from ..types import Frame, PoseEstimate
 from .environment import threads
 from .jobs import Job, labels, upstream_key

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..data.base import Dataset
-from ..protocol import Protocol
+from ..scoring.protocol import Protocol
 from .jobs import Job
 from .store import ResultsStore
 from .upstream import StoredUpstream

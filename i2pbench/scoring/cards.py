@@ -21,9 +21,9 @@ from ..errors import PluginError
 from .rules import ScoringRules
 
 if TYPE_CHECKING:  # cards are registered by `i2pbench plugins` too, which must import neither numpy nor pandas
-    from ..protocol import Protocol
+    from .protocol import Protocol
 
-DEFAULT_NAME, DEFAULT_VERSION = "edgeregnet", 1  # as i2pbench.protocol's (a test checks they agree)
+DEFAULT_NAME, DEFAULT_VERSION = "edgeregnet", 1  # as i2pbench.scoring.protocol's (a test checks they agree)
 
 TAU = 2 * math.pi
 SOURCES = {  # repository -> the commit every line number below refers to
@@ -106,7 +106,7 @@ class ProtocolCard:
     def protocol(self, seed: int = 0, dataset: str = "kitti") -> Protocol:
         """The Protocol a run under this card uses on `dataset`: its inputs, thresholds from its rules, its name and
         version on the card."""
-        from ..protocol import Protocol
+        from .protocol import Protocol
 
         r, i = self.rules, self.inputs(dataset) or NATIVE
         crop = i.image_crop or (0, 0)
@@ -161,7 +161,7 @@ EDGEREGNET = ProtocolCard(
 
 LOADER_NOTE = (
     "v2: on KITTI (original or CorrI2P layout) each frame is built as the paper's preprocessing and loader build it "
-    "for the frame's dataset index (i2pbench.protocol_peer, checked against the loaders: docs/datasets.md); v1 "
+    "for the frame's dataset index (i2pbench.scoring.protocol_peer, checked against the loaders: docs/datasets.md); v1 "
     "voxelised in the LiDAR frame and drew from i2pbench's per-frame generator"
 )
 _PEER_KITTI = Inputs(image_scale=0.5, image_crop=(160, 512), points=40960, voxel_m=0.1, pose_frame="camera")

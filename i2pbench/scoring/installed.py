@@ -12,10 +12,10 @@ import numpy as np
 import pandas as pd
 
 from ..errors import I2PBenchError
-from ..protocol import Protocol
 from ..registry import build
 from .cards import DEFAULT_NAME, DEFAULT_VERSION, EDGEREGNET, ProtocolCard
 from .metrics import BUILTIN, Metric, Scored
+from .protocol import Protocol
 from .score import frame_errors
 
 

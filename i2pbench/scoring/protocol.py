@@ -31,12 +31,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import DataError, I2PBenchError
-from .geometry import invert, make_transform, rot_z, transform_points
-from .types import Frame, SensorFrame
+from ..errors import DataError, I2PBenchError
+from ..geometry.transforms import invert, make_transform, rot_z, transform_points
+from ..types import Frame, SensorFrame
 
 if TYPE_CHECKING:
-    from .corruptions import Corruption
+    from ..corruptions.base import Corruption
 
 CORRUPTION_FIELDS = ("corruption", "severity")
 CARD_FIELDS = ("name", "version")  # which protocol card (i2pbench.scoring.cards); left out for the default
