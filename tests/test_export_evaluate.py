@@ -169,9 +169,9 @@ def test_a_damaged_upstream_is_set_aside_and_its_frame_run_whole(monkeypatch, tm
     damaged.write_bytes(damaged.read_bytes()[:100])  # as a power cut could leave it
     whole, real = [], frames.compute_frame
 
-    def compute_frame(job, data, frame_id, protocol, up_key=None):
+    def compute_frame(ctx, frame_id, up_key=None):
         whole.append(frame_id)
-        return real(job, data, frame_id, protocol, up_key)
+        return real(ctx, frame_id, up_key)
 
     monkeypatch.setattr(frames, "compute_frame", compute_frame)
     records = run_grid(registry, [Combination(TOY)], dataset, Protocol(), store, overwrite=False)

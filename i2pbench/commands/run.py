@@ -140,20 +140,22 @@ def _publish(ctx: RunContext, records, invocation, wall_s: float, stem: Path) ->
     CLI, not for a Python caller: `echo`), then written to `stem`."""
     from ..boards import leaderboard
     from ..execution import progress
+    from ..scoring.installed import active
     from .results import RunResult
     from .run_notes import failure_reasons, latency_reused
 
-    args, store_root = ctx.options, ctx.store.root
-    board = leaderboard.build(records, ctx.protocol)
+    args, store_root, metrics = ctx.options, ctx.store.root, active(ctx.registry)
+    board = leaderboard.build(records, ctx.protocol, metrics, ctx.registry)
     counts = _summary(records, board, invocation.id, wall_s)
     invocation.finish(**counts)
     progress.note(f"{counts['reused']} of {len(records)} frames reused from the cache in {store_root}")
     if getattr(args, "echo", True):
-        print(leaderboard.to_markdown(board))  # first: a leaderboard that cannot be written is still seen
+        # first: a leaderboard that cannot be written is still seen
+        print(leaderboard.to_markdown(board, metrics=metrics))
     for line in [*failure_reasons(records), *latency_reused(records, invocation.id, ctx.threads, args)]:
         progress.note(line)
     summary = _robustness(ctx.registry, board, getattr(args, "echo", True))
-    paths = _write_board(board, records, stem, store_root, summary)
+    paths = _write_board(board, records, stem, store_root, summary, metrics)
     progress.note(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store_root}")
     return RunResult(board, records, store_root, paths, invocation.id)
 
@@ -252,7 +254,7 @@ def _open_store(root: Path):
         ) from None
 
 
-def _write_board(board, records, stem: Path, store_root: Path, summary=None) -> list[Path]:
+def _write_board(board, records, stem: Path, store_root: Path, summary=None, metrics=None) -> list[Path]:
     """The leaderboard's files with the environment record of the invocations whose frames it holds (and the
     robustness summary's, `<stem>-robustness`); an unwritable folder is an error that says nothing computed is lost."""
     from ..boards import leaderboard
@@ -260,7 +262,7 @@ def _write_board(board, records, stem: Path, store_root: Path, summary=None) -> 
     from ..runs import board_env
 
     try:
-        paths = [*leaderboard.write(board, stem), board_env.write(stem, store_root, records)]
+        paths = [*leaderboard.write(board, stem, metrics), board_env.write(stem, store_root, records)]
         if summary is not None:
             paths += leaderboard.write_robustness(summary, stem.with_name(f"{stem.name}-robustness"))
         return paths

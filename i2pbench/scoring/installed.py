@@ -4,9 +4,10 @@ default, then those the plugins register) found by name, and records scored unde
 
 from __future__ import annotations
 
+import copyreg
 import difflib
 from collections.abc import Iterable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -18,10 +19,27 @@ from .metrics import BUILTIN, Metric, Scored
 from .protocol import Protocol
 from .score import frame_errors
 
+if TYPE_CHECKING:
+    from ..registry.catalog import Registry
 
-def active() -> tuple[Metric, ...]:
-    """The built-in metrics, then those the installed plugins register (in plugin order)."""
-    return BUILTIN + tuple(build.default_registry().metrics.values())
+
+def active(registry: Registry | None = None) -> tuple[Metric, ...]:
+    """The built-in metrics, then those the registry's plugins register (in plugin order); default: the installed
+    plugins' registry."""
+    return BUILTIN + tuple((registry or build.default_registry()).metrics.values())
+
+
+def named(name: str) -> Metric:
+    """The installed metric called `name`: how a metric crosses to a worker process, where the plugins the
+    environment selects are loaded again (its callables are often lambdas, which do not pickle)."""
+    metric = by_name().get(name)
+    if metric is None:
+        raise I2PBenchError(f"metric {name!r} is not installed in this process (a plugin given to the registry by "
+                            "hand, not by entry point?): run it with the in-process executor")  # fmt: skip
+    return metric
+
+
+copyreg.pickle(Metric, lambda metric: (named, (metric.name,)))
 
 
 def record_values(scored: Scored, metrics: Iterable[Metric] | None = None) -> dict[str, float]:
