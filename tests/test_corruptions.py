@@ -393,13 +393,13 @@ def test_the_clean_card_and_identity_are_those_before_corruptions_existed():
     assert "corruption" not in Protocol().card() and Protocol().identity() == "71a877f2ef9c7dc4"
     corrupted = Protocol(seed=3).corrupted(Vignette(), 2)
     assert corrupted.card()["corruption"] == "vignette" and corrupted.card()["severity"] == 2
-    assert Protocol(**corrupted.card()) == corrupted and corrupted.identity() != Protocol(seed=3).identity()
+    assert Protocol.from_card(corrupted.card()) == corrupted and corrupted.identity() != Protocol(seed=3).identity()
 
 
 def test_a_card_read_back_names_its_corruption_and_its_reader_resolves_the_component(third_party):
     sensor = scan()
     corrupted = Protocol(seed=3).corrupted(Vignette(), 2)
-    read_back = Protocol(**corrupted.card())  # as the report reads a run's card
+    read_back = Protocol.from_card(corrupted.card())  # as the report reads a run's card
     with pytest.raises(I2PBenchError, match="names corruption 'vignette' but holds no component"):
         read_back.apply(sensor)
     again = resolved(third_party, read_back)

@@ -124,10 +124,8 @@ def add_metric(registry: Registry, plugin: str, metric: Any) -> None:
 
 
 def add_protocol(registry: Registry, plugin: str, card: Any) -> None:
-    """A plugin's protocol card; a name another plugin (or the default card) has is refused, naming both."""
-    from ..scoring.cards import EDGEREGNET, check
+    """A plugin's protocol card; a name another card has (the default card's, i2pbench's own, included) is refused,
+    naming both."""
+    from ..scoring.cards import check
 
-    card = check(card, plugin)
-    if card.name == EDGEREGNET.name and card != EDGEREGNET:
-        raise PluginError(f"protocol {card.name!r} is i2pbench's default card; plugin {plugin!r} cannot replace it")
-    registry.protocols.add(card.name, card, plugin)
+    registry.protocols.add(card.name, check(card, plugin), plugin)
