@@ -58,11 +58,11 @@ LAYER_CODE = {
     "canonical": (0, "0bde0510db44"),
     "cluster_max": (0, "af4852f06a08"),
     "frame_norm": (0, "b360eba841ba"),
-    "global_pointnet2": (0, "8747a5b05659"),  # BatchedStage, seeded_cloud, deep merge_conf: same outputs
+    "global_pointnet2": (0, "03daa78cf4e8"),  # BatchedStage, seeded_cloud, deep merge_conf; issue 38's import paths
     "kernels": (1, "4a6546946f55"),  # FPS sums rounded squares unfused, as the authors' PointNet++ (issue 39)
     "mlp": (0, "1e8fb86b56f9"),
     "nodes": (0, "57e284127b45"),
-    "peer_inputs": (0, "0b74d4a1d908"),  # moved from the CorrI2P, DeepI2P, VP2P-Match official stages: same outputs
+    "peer_inputs": (0, "dbf6f28bc889"),  # from the official stages (same outputs); issue 38's import paths
     "pointnet2": (1, "ee6c35457d80"),  # the torch FPS rounds as the compiled one (issue 39); seeded_cloud: same
     "point_voxel": (0, "6454dd9cb5d5"),
     "resnet": (0, "38d6e5b5dcfe"),
