@@ -178,30 +178,10 @@ def _displayed(columns: list[str], metrics: tuple[Metric, ...]) -> list[str]:
 
 
 DISPLAY = _displayed(
-    [
-        "dataset",
-        "split",
-        "combination",
-        "method",
-        "corruption",
-        "severity",
-        "weights",
-        "weights_trained_on",
-        "frames",
-        "failures",
-        ACC,
-        CHANCE,
-        ACC_SKILL,
-        RTE,
-        RRE,
-        INLIER_RATIO,
-        TRUE_MATCHES,
-        MODEL_SIZE,
-        LATENCY_MEDIAN,
-        LATENCY_P90,
-    ],
+    ["dataset", "split", "combination", "method", "corruption", "severity", "weights", "weights_trained_on", "frames",
+     "failures", ACC, CHANCE, ACC_SKILL, RTE, RRE, INLIER_RATIO, TRUE_MATCHES, MODEL_SIZE, LATENCY_MEDIAN, LATENCY_P90],
     metric_registry.BUILTIN,
-)
+)  # fmt: skip
 
 
 def to_markdown(
