@@ -20,7 +20,7 @@ import torch
 from i2pbench_edgeregnet import configs
 
 from i2pbench.api import Features, Frame, Keypoints2D, Keypoints3D
-from i2pbench.geometry import in_image, project
+from i2pbench.geometry.transforms import in_image, project
 from i2pbench.layers.pointnet2 import farthest_point_sampling
 from i2pbench.registry.build import build_registry
 

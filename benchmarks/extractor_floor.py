@@ -32,8 +32,8 @@ import cv2
 import numpy as np
 
 from i2pbench.data.kitti import KittiOdometry
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.types import Frame
 
 KITTI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_odometry"

@@ -17,9 +17,9 @@ import numpy as np
 import pandas as pd
 
 from i2pbench.data.kitti import KittiOdometry
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
 from i2pbench.scoring.pose import pose_errors
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.types import Features, Matches
 
 SOLVERS = ("epnp-ransac", "poselib")

@@ -35,11 +35,11 @@ import torch.nn.functional as F
 from edgeregnet_latency import kitti_sized_frame  # this folder is on sys.path when the script runs
 from torch.utils.flop_counter import FlopCounterMode
 
-from i2pbench.components import STAGES
-from i2pbench.grid import base_combinations, expand
-from i2pbench.pipeline import Pipeline
 from i2pbench.registry.build import default_registry
+from i2pbench.runs.grid import base_combinations, expand
 from i2pbench.stages.calling import StageInputs, call_stage
+from i2pbench.stages.components import STAGES
+from i2pbench.stages.pipeline import Pipeline
 
 LEARNED = ("encoder2d", "encoder3d", "exchanger", "matcher")
 KINDS = ("conv", "attention", "matmul")  # what FLOPs are timed against; FlopCounterMode counts nothing else

@@ -36,14 +36,14 @@ import numpy as np
 
 from i2pbench.api import Extractor2D, Keypoints2D, hookimpl
 from i2pbench.data.kitti import KittiOdometry
-from i2pbench.grid import expand
-from i2pbench.pipeline import Combination
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry, default_registry
 from i2pbench.registry.catalog import Registry
 from i2pbench.runs.executors import Collector, Executor, LocalExecutor, Task, Work, plan, run_job
+from i2pbench.runs.grid import expand
 from i2pbench.runs.jobs import prepare
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination
 
 KITTI = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_odometry"
 CLASSIC_BASE = {"matcher": "oracle"}

@@ -22,9 +22,9 @@ from tempfile import TemporaryDirectory
 
 import torch
 
-from i2pbench.grid import base_combinations, expand, parse_conf_overrides
-from i2pbench.pipeline import Pipeline
 from i2pbench.registry.build import default_registry
+from i2pbench.runs.grid import base_combinations, expand, parse_conf_overrides
+from i2pbench.stages.pipeline import Pipeline
 from i2pbench.training.batching import BatchForward, to_device
 from i2pbench.training.config import TrainConfig
 from i2pbench.training.loop import Trainer

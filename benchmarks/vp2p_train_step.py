@@ -24,10 +24,10 @@ from i2pbench_vp2p_match.official.loss import pose_loss
 from i2pbench_vp2p_match.official.stages import SUP, unpadded
 
 from i2pbench.api import Features
-from i2pbench.grid import expand
-from i2pbench.pipeline import Pipeline
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
+from i2pbench.runs.grid import expand
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Pipeline
 
 DATA = Path(__file__).resolve().parents[2] / "shared/data/kitti_odometry"
 

@@ -17,6 +17,6 @@ __all__ = ["__version__", *CALLS]
 def __getattr__(name: str) -> Any:
     if name not in CALLS:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    from . import calls
+    from .commands import calls
 
     return getattr(calls, name)

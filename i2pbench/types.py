@@ -32,7 +32,7 @@ class SensorFrame:
     ego_motion: np.ndarray | None = None
     # the frame's index in the list the peers' loaders build over its split (KITTI: 2 x its position, + 1 for camera
     # 3): under the corri2p and cofii2p cards the protocol builds the frame as their loader does for that index
-    # (i2pbench.protocol_peer); None: the card's own resampling (protocol_inputs)
+    # (i2pbench.scoring.protocol_peer); None: the card's own resampling (protocol_inputs)
     draw_index: int | None = None
     preprocessed: bool = False  # the points are already the peers' preprocessed cloud (0.1 m grid, 1-NN reflectance)
 
@@ -125,7 +125,7 @@ class Features:
 class Matches:
     """2D-3D correspondences, and optionally what the matcher believes of every 3D keypoint.
 
-    `frustum` is set by a matcher that declares FRUSTUM_SCORES (i2pbench.components) in `provides`: for each 3D
+    `frustum` is set by a matcher that declares FRUSTUM_SCORES (i2pbench.stages.components) in `provides`: for each 3D
     keypoint, its probability of lying in the camera frustum (DeepI2P's classification), which an inverse-projection
     solver fits a pose to. None: the matcher gives none.
 

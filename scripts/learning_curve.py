@@ -49,7 +49,7 @@ import yaml
 from i2pbench.boards.leaderboard import to_markdown
 from i2pbench.data.kitti_drives import DEFAULT_SPLIT_FILE, load_split_file
 from i2pbench.runs.store import ResultsStore
-from i2pbench.weights import file_digest
+from i2pbench.weights.checkpoints import file_digest
 
 ARMS = ("synthetic", "scratch")
 SHIPPED = (
@@ -263,10 +263,10 @@ def frame_losses(
     import torch
 
     from i2pbench.data.kitti_drives import KittiDrives
-    from i2pbench.pipeline import Combination
-    from i2pbench.protocol import Protocol
     from i2pbench.registry.build import default_registry
     from i2pbench.runs.jobs import prepare
+    from i2pbench.scoring.protocol import Protocol
+    from i2pbench.stages.pipeline import Combination
 
     torch.set_num_threads(1)  # one process per checkpoint, side by side
     registry = default_registry()

@@ -45,7 +45,7 @@ LABELS = {  # the plot's names of the runs in docs/edgeregnet.md
 
 def checkpoint_step(path: Path) -> int:
     """the optimiser steps a checkpoint has (0 when there is none)."""
-    from i2pbench.weights import load_checkpoint
+    from i2pbench.weights.checkpoints import load_checkpoint
 
     return int(load_checkpoint(path).meta.get("steps", 0)) if path.exists() else 0
 

@@ -90,9 +90,9 @@ def counted(monkeypatch):
     calls = []
     real = worker.compute  # every computed frame passes here, run whole or re-solved, whichever executor runs it
 
-    def compute(job, dataset, frame_id, *args, **kwargs):
+    def compute(ctx, frame_id, *args, **kwargs):
         calls.append(frame_id)
-        return real(job, dataset, frame_id, *args, **kwargs)
+        return real(ctx, frame_id, *args, **kwargs)
 
     monkeypatch.setattr(worker, "compute", compute)
     return calls

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import toy_plugin
 
-from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.registry.build import build_registry
+from i2pbench.stages.pipeline import Combination, Pipeline
 from i2pbench.training.augment import Photometric, augmentations
 from i2pbench.training.samples import TrainingSamples
 

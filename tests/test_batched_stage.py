@@ -1,5 +1,6 @@
-"""The batched learned-stage contract (i2pbench.learned.BatchedStage): a stage declares `prepare` and `forward` (and
-`batch_loss` to train), and its per-frame call, its one-frame loss and its batched training all derive from them."""
+"""The batched learned-stage contract (i2pbench.stages.learned.BatchedStage): a stage declares `prepare` and
+`forward` (and `batch_loss` to train), and its per-frame call, its one-frame loss and its batched training all derive
+from them."""
 
 import numpy as np
 import pytest

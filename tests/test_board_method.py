@@ -5,9 +5,9 @@ import pandas as pd
 import pytest
 
 from i2pbench.boards import leaderboard
-from i2pbench.components import STAGE_ORDER
 from i2pbench.registry.build import default_registry
 from i2pbench.registry.methods import Method, Size, method_of
+from i2pbench.stages.components import STAGE_ORDER
 
 
 @pytest.mark.parametrize(

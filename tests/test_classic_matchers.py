@@ -9,8 +9,8 @@ import pytest
 import torch
 from i2pbench_classic.matchers import CosineMatcher, OracleMatcher
 
-from i2pbench.components import TrainableMatcher
 from i2pbench.errors import StageError
+from i2pbench.stages.components import TrainableMatcher
 from i2pbench.types import Features, Frame, Keypoints2D, Keypoints3D
 
 K = np.array([[700.0, 0.0, 600.0], [0.0, 700.0, 180.0], [0.0, 0.0, 1.0]])

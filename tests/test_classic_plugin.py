@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from i2pbench.diagnostics import edge_diagnostics, image_coverage, summarize_edge_diagnostics
+from i2pbench.diagnostics.edges import edge_diagnostics, image_coverage, summarize_edge_diagnostics
 from i2pbench.errors import PluginError
-from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.registry.build import default_registry
+from i2pbench.stages.pipeline import Combination, Pipeline
 from i2pbench.types import Frame, Keypoints2D, Keypoints3D
 
 

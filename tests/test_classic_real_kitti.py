@@ -9,11 +9,11 @@ import pandas as pd
 import pytest
 from conftest import SAMPLE_DATA, sample
 
-from i2pbench.diagnostics import edge_diagnostics_grid, summarize_edge_diagnostics
-from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.protocol import Protocol
+from i2pbench.diagnostics.edges import edge_diagnostics_grid, summarize_edge_diagnostics
 from i2pbench.registry.build import default_registry
 from i2pbench.scoring.pose import pose_errors
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination, Pipeline
 
 KITTI = SAMPLE_DATA / "kitti_odometry"
 EXTRACTORS_2D = ["lsd", "canny", "sobel", "random"]

@@ -8,7 +8,7 @@ import pytest
 from i2pbench_classic.solvers import EPnPRansacSolver, PoseLibSolver
 from scipy.spatial.transform import Rotation
 
-from i2pbench.geometry import make_transform, project
+from i2pbench.geometry.transforms import make_transform, project
 from i2pbench.scoring.pose import pose_errors
 from i2pbench.types import Frame, Keypoints2D, Keypoints3D, Matches
 

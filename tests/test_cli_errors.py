@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from i2pbench.commands.diagnose import COLUMNS
-from i2pbench.diagnostics import summarize_edge_diagnostics
+from i2pbench.diagnostics.edges import summarize_edge_diagnostics
 from i2pbench.errors import I2PBenchError
 from i2pbench.execution.devices import DeviceError, resolve_device
 from i2pbench.report.overlay import rre_text

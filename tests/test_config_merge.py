@@ -5,8 +5,8 @@ import pytest
 from test_cli_errors import assert_refused, i2pbench
 
 from i2pbench.errors import PluginError
-from i2pbench.grid import parse_conf_overrides
 from i2pbench.registry.build import default_registry
+from i2pbench.runs.grid import parse_conf_overrides
 from i2pbench.runs.jobs import _described
 from i2pbench.runs.store import cache_key
 from i2pbench.stages.config import ConfigError, merge_conf, overlay

@@ -4,13 +4,13 @@ import pytest
 import toy_plugin
 
 from i2pbench.api import Corruption, Encoder3D, Exchanger, Method, Metric, Size, hookimpl
-from i2pbench.components import STAGES
 from i2pbench.errors import PluginError
 from i2pbench.registry.build import build_registry
 from i2pbench.registry.hookspecs import HOOK_NAMES
 from i2pbench.registry.listing import components_of
 from i2pbench.scoring.cards import NATIVE, ProtocolCard
 from i2pbench.scoring.rules import ScoringRules
+from i2pbench.stages.components import STAGES
 
 
 class Encoder3DStub(Encoder3D):

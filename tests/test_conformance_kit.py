@@ -17,7 +17,7 @@ from i2pbench.api import (
     PoseSolver,
     hookimpl,
 )
-from i2pbench.geometry import in_image, project
+from i2pbench.geometry.transforms import in_image, project
 from i2pbench.testing import assert_conforms, check_component, registered_components, synthetic_frame
 
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from i2pbench.correspondence import true_match_mask
-from i2pbench.geometry import make_transform, rot_z
+from i2pbench.geometry.correspondence import true_match_mask
+from i2pbench.geometry.transforms import make_transform, rot_z
 from i2pbench.types import Frame
 
 K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])

@@ -22,9 +22,9 @@ from test_edgeregnet_training import one_thread, tiny_frame  # noqa: F401 (an au
 from test_training_batches import assert_mean_of_frames
 
 from i2pbench.api import Features, Frame, Keypoints2D, Keypoints3D
-from i2pbench.grid import base_combinations, expand
 from i2pbench.layers.frame_norm import FrameNorm
 from i2pbench.registry.build import build_registry
+from i2pbench.runs.grid import base_combinations, expand
 from i2pbench.runs.jobs import prepare
 from i2pbench.testing import check_component, registered_components
 from i2pbench.training.batching import BatchForward, prepare_stage

@@ -20,9 +20,9 @@ from i2pbench.data.corri2p_kitti import Corri2PKitti
 from i2pbench.data.images import read_image
 from i2pbench.data.kitti import KittiOdometry
 from i2pbench.errors import DataError
-from i2pbench.protocol import Protocol
-from i2pbench.protocol_peer import draw_pose, seed_of
 from i2pbench.scoring.cards import COFII2P, CORRI2P
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.scoring.protocol_peer import draw_pose, seed_of
 
 KITTI = SAMPLE_DATA / "kitti_odometry"
 

@@ -19,7 +19,7 @@ from i2pbench.api import Keypoints2D, Keypoints3D, WeightsError
 from i2pbench.cli import main
 from i2pbench.registry.build import default_registry
 from i2pbench.testing.recipe import recipe_value
-from i2pbench.weights import load_checkpoint
+from i2pbench.weights.checkpoints import load_checkpoint
 
 SHAPES = Path(__file__).parent / "data" / "reference" / "corri2p" / "state_dict_shapes.json"
 

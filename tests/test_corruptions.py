@@ -16,19 +16,19 @@ import toy_plugin
 
 from i2pbench.api import Corruption, hookimpl
 from i2pbench.boards import leaderboard
-from i2pbench.corruptions import CorruptionError
+from i2pbench.corruptions.base import CorruptionError
 from i2pbench.errors import I2PBenchError, PluginError
-from i2pbench.grid import protocols
-from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry, default_registry
 from i2pbench.registry.listing import components_of
 from i2pbench.report.rundir import resolved
 from i2pbench.runs.executors import run_grid
+from i2pbench.runs.grid import protocols
 from i2pbench.runs.jobs import frame_key, prepare
 from i2pbench.runs.store import ResultsStore
 from i2pbench.runs.upstream import StoredUpstream
 from i2pbench.scoring.metrics import true_matches
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination, Pipeline
 from i2pbench.testing.frames import R_CAM_LIDAR, Scene, _image, _lidar
 from i2pbench.types import SensorFrame
 
@@ -393,13 +393,13 @@ def test_the_clean_card_and_identity_are_those_before_corruptions_existed():
     assert "corruption" not in Protocol().card() and Protocol().identity() == "71a877f2ef9c7dc4"
     corrupted = Protocol(seed=3).corrupted(Vignette(), 2)
     assert corrupted.card()["corruption"] == "vignette" and corrupted.card()["severity"] == 2
-    assert Protocol(**corrupted.card()) == corrupted and corrupted.identity() != Protocol(seed=3).identity()
+    assert Protocol.from_card(corrupted.card()) == corrupted and corrupted.identity() != Protocol(seed=3).identity()
 
 
 def test_a_card_read_back_names_its_corruption_and_its_reader_resolves_the_component(third_party):
     sensor = scan()
     corrupted = Protocol(seed=3).corrupted(Vignette(), 2)
-    read_back = Protocol(**corrupted.card())  # as the report reads a run's card
+    read_back = Protocol.from_card(corrupted.card())  # as the report reads a run's card
     with pytest.raises(I2PBenchError, match="names corruption 'vignette' but holds no component"):
         read_back.apply(sensor)
     again = resolved(third_party, read_back)

@@ -16,15 +16,15 @@ from conftest import nuscenes_sample
 from test_corruptions import conformance_sensor, scan
 
 from i2pbench.api import Corruption
-from i2pbench.corruptions import CorruptionError, NotApplicable, check_class
+from i2pbench.corruptions.base import CorruptionError, NotApplicable, check_class
 from i2pbench.data.base import Dataset
 from i2pbench.data.kitti import KittiOdometry, read_frame
 from i2pbench.errors import DataError, PluginError
-from i2pbench.geometry import in_image, invert, make_transform, project, rot_z, transform_points
-from i2pbench.grid import protocols
-from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.protocol import Protocol
+from i2pbench.geometry.transforms import in_image, invert, make_transform, project, rot_z, transform_points
 from i2pbench.registry.build import default_registry
+from i2pbench.runs.grid import protocols
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination, Pipeline
 from i2pbench.types import SensorFrame
 
 TILTS = (1, 2, 3, 5, 8)  # degrees

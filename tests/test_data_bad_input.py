@@ -18,11 +18,11 @@ from i2pbench.data.kitti import read_frame
 from i2pbench.data.nuscenes import NuScenes
 from i2pbench.data.nuscenes_dataroot import build_dataroot
 from i2pbench.errors import DataError
-from i2pbench.pipeline import Combination
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry
 from i2pbench.runs.executors import run_grid
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination
 
 DATA = SAMPLE_DATA
 KITTI = DATA / "kitti_odometry" / "sequences" / "00"

@@ -12,7 +12,7 @@ from conftest import SAMPLE_DATA, needs_sample
 from i2pbench.data.kitti import KittiOdometry, camera_calib, read_frame
 from i2pbench.data.scanlines import recover_rings, scan_phase
 from i2pbench.errors import DataError
-from i2pbench.geometry import in_image, project
+from i2pbench.geometry.transforms import in_image, project
 from i2pbench.registry.build import build_registry
 
 KITTI = SAMPLE_DATA / "kitti_odometry"

@@ -15,7 +15,7 @@ from i2pbench.data import nuscenes as nus
 from i2pbench.data.nuscenes import CAMERAS, NuScenes, lidar_to_camera, read_sweep, record_matrix
 from i2pbench.data.nuscenes_dataroot import build_dataroot as build
 from i2pbench.errors import DataError
-from i2pbench.geometry import in_image, invert, project
+from i2pbench.geometry.transforms import in_image, invert, project
 from i2pbench.registry.build import build_registry
 from i2pbench.runs.store import ResultsStore
 

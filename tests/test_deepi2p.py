@@ -44,18 +44,18 @@ from i2pbench.api import (
     PoseSolver,
     SensorFrame,
 )
-from i2pbench.correspondence import true_match_mask
 from i2pbench.errors import PluginError
-from i2pbench.grid import base_combinations, expand
-from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.protocol import Protocol
+from i2pbench.geometry.correspondence import true_match_mask
 from i2pbench.registry.build import build_registry
+from i2pbench.runs.grid import base_combinations, expand
 from i2pbench.runs.jobs import prepare
 from i2pbench.runs.upstream import UPSTREAM_KINDS, StoredUpstream
 from i2pbench.scoring.metrics import true_matches
 from i2pbench.scoring.pose import pose_errors
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.stages.calling import StageInputs, call_stage
 from i2pbench.stages.contracts import ContractError, check_matches
+from i2pbench.stages.pipeline import Combination, Pipeline
 from i2pbench.stages.trace import FrameOutcome, Upstream
 from i2pbench.testing import check_component, check_declaration, registered_components
 from i2pbench.training.batching import BatchForward, prepare_stage

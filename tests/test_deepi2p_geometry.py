@@ -18,9 +18,9 @@ from i2pbench_deepi2p.labels import cell_centres, cell_of_pixels, frustum_labels
 from i2pbench_deepi2p.poses import full_pose, planar_params, planar_pose
 from scipy.spatial.transform import Rotation
 
-from i2pbench.geometry import invert, make_transform, project
-from i2pbench.protocol import Protocol
+from i2pbench.geometry.transforms import invert, make_transform, project
 from i2pbench.scoring.pose import pose_errors
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.types import Frame, Keypoints3D
 
 # A small camera: 640 x 240 pixels, f = 400, principal point at the image centre (pixel centres at integers, so the

@@ -32,7 +32,7 @@ from i2pbench.cli import main
 from i2pbench.registry.build import default_registry
 from i2pbench.runs.store import ResultsStore
 from i2pbench.testing.recipe import recipe_value
-from i2pbench.weights import load_checkpoint
+from i2pbench.weights.checkpoints import load_checkpoint
 
 SHAPES = Path(__file__).parent / "data" / "reference" / "deepi2p" / "state_dict_shapes.json"
 # KITTI's camera 2 (sequence 00) and a 1241 x 376 image: rows below the top 50 halved to 620 x 163, crop offsets

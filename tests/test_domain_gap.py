@@ -14,7 +14,7 @@ import pytest
 from i2pbench.api import Extractor2D, Extractor3D, Frame, Keypoints2D, Keypoints3D
 from i2pbench.cli import main
 from i2pbench.commands.domain_gap import STATISTICS
-from i2pbench.domain_gap import (
+from i2pbench.diagnostics.domain_gap import (
     edge_counts,
     frame_statistics,
     gap_extractors,

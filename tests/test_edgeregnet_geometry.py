@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from i2pbench.geometry import make_transform, rot_z
+from i2pbench.geometry.transforms import make_transform, rot_z
 from i2pbench.layers.pointnet2 import (
     ball_query,
     ball_query_torch,

@@ -51,7 +51,7 @@ def test_shipped_configs_build_and_agree(variant):
 
 
 def _matcher_pipeline(**matcher_conf):
-    from i2pbench.pipeline import Combination, Pipeline
+    from i2pbench.stages.pipeline import Combination, Pipeline
 
     stages = {"extractor2d": "random", "extractor3d": "random", **configs.COMPONENTS, "exchanger": "none"}
     confs = {"encoder2d": SMALL, "encoder3d": SMALL, "matcher": {**SMALL, **matcher_conf}}
@@ -61,7 +61,7 @@ def _matcher_pipeline(**matcher_conf):
 
 def test_inference_thresholds_do_not_change_which_checkpoint_fits(tmp_path):
     from i2pbench.errors import WeightsError
-    from i2pbench.weights import apply_checkpoint, load_checkpoint, save_checkpoint
+    from i2pbench.weights.checkpoints import apply_checkpoint, load_checkpoint, save_checkpoint
 
     checkpoint = load_checkpoint(save_checkpoint(tmp_path / "m.pt", _matcher_pipeline(), steps=1))
     swept = _matcher_pipeline(filter_threshold=0.2, fov_filter=False)
@@ -74,7 +74,7 @@ def test_inference_thresholds_do_not_change_which_checkpoint_fits(tmp_path):
 
 def test_the_shipped_checkpoints_fit_the_presets_that_use_them():
     """Configs and committed weights move together: the default row and the no-exchange row get their checkpoints."""
-    from i2pbench.grid import base_combinations, expand
+    from i2pbench.runs.grid import base_combinations, expand
     from i2pbench.runs.jobs import prepare
 
     registry = build_registry()

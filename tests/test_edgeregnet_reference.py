@@ -22,7 +22,7 @@ from i2pbench.cli import main
 from i2pbench.layers.pointnet2 import ball_query as fast_ball_query
 from i2pbench.layers.pointnet2 import farthest_point_sampling
 from i2pbench.testing.recipe import folder_state
-from i2pbench.weights import load_checkpoint
+from i2pbench.weights.checkpoints import load_checkpoint
 
 FOLDER = Path(os.environ.get("I2PBENCH_EDGEREGNET_REFERENCE") or SAMPLE_DATA / "edgeregnet_reference")
 pytestmark = pytest.mark.skipif(
@@ -194,7 +194,7 @@ def test_reference_superpoint_init_takes_magic_leaps_keys(official_file, tmp_pat
     """`train --init-2d superpoint_v1.pth`: Magic Leap's keys are the official encoder2d's own (conv1a..convDb, the
     authors load that file into it: models/superpoint.py:137-138); a file missing one is refused by name."""
     from i2pbench.errors import WeightsError
-    from i2pbench.weights import load_init
+    from i2pbench.weights.checkpoints import load_init
 
     official = torch.load(official_file, weights_only=True)
     magic_leap = {k.removeprefix("superpoint."): v for k, v in official.items() if k.startswith("superpoint.")}

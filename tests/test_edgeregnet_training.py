@@ -9,7 +9,7 @@ from i2pbench_edgeregnet.pointnet2 import PointNet2Encoder
 from i2pbench_edgeregnet.superpoint import SuperPointEncoder
 
 from i2pbench.api import Features, Frame, Keypoints2D, Keypoints3D, Matches
-from i2pbench.geometry import project
+from i2pbench.geometry.transforms import project
 
 D = 32
 TINY = {
@@ -149,7 +149,7 @@ def test_a_resized_image_gives_descriptors_for_every_pixel():
 def moved_frames(mirror: bool = False) -> tuple[list[Frame], list[Keypoints3D]]:
     """a skewed scan and the same scan under a protocol-like transform (yaw 2.2 rad, planar shift), optionally also
     mirrored in y: a reflection no yaw-canonical frame can undo, the deliberately broken case."""
-    from i2pbench.geometry import make_transform, rot_z
+    from i2pbench.geometry.transforms import make_transform, rot_z
 
     frame, _, kp3d = tiny_frame()
     rng = np.random.default_rng(1)

@@ -17,12 +17,12 @@ from i2pbench_classic.matchers import OracleMatcher
 from i2pbench.boards import leaderboard
 from i2pbench.cli import main
 from i2pbench.data.kitti import KittiOdometry
-from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry, default_registry
 from i2pbench.runs import frames
 from i2pbench.runs.executors import run_grid
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination, Pipeline
 
 STAGES = {"extractor2d": "canny", "extractor3d": "depth", "matcher": "oracle"}
 FIRST = Combination({**STAGES, "solver": "epnp-ransac"})
@@ -169,9 +169,9 @@ def test_a_damaged_upstream_is_set_aside_and_its_frame_run_whole(monkeypatch, tm
     damaged.write_bytes(damaged.read_bytes()[:100])  # as a power cut could leave it
     whole, real = [], frames.compute_frame
 
-    def compute_frame(job, data, frame_id, protocol, up_key=None):
+    def compute_frame(ctx, frame_id, up_key=None):
         whole.append(frame_id)
-        return real(job, data, frame_id, protocol, up_key)
+        return real(ctx, frame_id, up_key)
 
     monkeypatch.setattr(frames, "compute_frame", compute_frame)
     records = run_grid(registry, [Combination(TOY)], dataset, Protocol(), store, overwrite=False)

@@ -127,7 +127,7 @@ def harder(frame: Frame, seed: int) -> Frame:
 @pytest.fixture
 def real_frames(shared_data):
     from i2pbench.data.kitti import KittiOdometry
-    from i2pbench.protocol import Protocol
+    from i2pbench.scoring.protocol import Protocol
 
     data = KittiOdometry("all", {"root": str(shared_data / "kitti_odometry")})
     frames = [Protocol().apply(data.load(frame_id)) for frame_id in data.frame_ids()[:2]]

@@ -13,12 +13,12 @@ from i2pbench.data.kitti import KittiOdometry
 from i2pbench.data.nuscenes import NuScenes
 from i2pbench.data.synthetic.dataset import SyntheticStreets
 from i2pbench.errors import DataError
-from i2pbench.pipeline import Combination
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry
 from i2pbench.runs.executors import plan, run_grid
 from i2pbench.runs.jobs import frame_key, prepare
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination
 
 BASE = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
 FRAMES = ["00/000000", "00/000001"]

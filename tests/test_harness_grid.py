@@ -7,8 +7,8 @@ import toy_plugin
 
 from i2pbench.commands.options import chosen_combinations, parse_data_conf
 from i2pbench.errors import PluginError
-from i2pbench.grid import base_combinations, expand, load_grid_file
 from i2pbench.registry.build import build_registry, default_registry
+from i2pbench.runs.grid import base_combinations, expand, load_grid_file
 from i2pbench.runs.jobs import prepare
 
 CLASSIC = {"extractor2d": "lsd", "extractor3d": "depth+reflectance", "matcher": "oracle", "solver": "epnp-ransac"}
@@ -125,8 +125,8 @@ def test_exchange_ablation_is_table_iv():
 
 
 def test_stages_from_the_base_that_nothing_consumes_are_dropped_but_named_ones_kept():
-    from i2pbench.grid import expand
     from i2pbench.registry.build import default_registry
+    from i2pbench.runs.grid import expand
 
     registry = default_registry()
     bases = base_combinations(registry, None)
@@ -140,8 +140,8 @@ def test_stages_from_the_base_that_nothing_consumes_are_dropped_but_named_ones_k
 
 
 def test_extractor_caps_pinned_for_the_learned_stages_leave_with_them():
-    from i2pbench.grid import expand
     from i2pbench.registry.build import default_registry
+    from i2pbench.runs.grid import expand
 
     registry = default_registry()
     bases = base_combinations(registry, None)

@@ -8,12 +8,12 @@ import pandas as pd
 import pytest
 
 from i2pbench.boards import leaderboard
-from i2pbench.grid import expand
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
 from i2pbench.runs.executors import run_grid
+from i2pbench.runs.grid import expand
 from i2pbench.runs.invocation import history
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
 
 GRID = {"extractor2d": ["canny", "sobel"], "extractor3d": ["depth", "reflectance", "depth+reflectance"]}
 BASE = {"matcher": "oracle", "solver": "epnp-ransac"}

@@ -19,7 +19,7 @@ from i2pbench.boards.leaderboard import (
     TRUE_MATCHES,
     stage_latency,
 )
-from i2pbench.components import STAGE_ORDER
+from i2pbench.stages.components import STAGE_ORDER
 
 
 def _records(combination: str, rte, rre, t_total, crashed=()) -> pd.DataFrame:

@@ -11,12 +11,12 @@ import pandas as pd
 import pytest
 
 from i2pbench.boards import leaderboard
-from i2pbench.grid import base_combinations, expand
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
 from i2pbench.runs.executors import run_grid
+from i2pbench.runs.grid import base_combinations, expand
 from i2pbench.runs.invocation import history
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
 
 BASE = {"extractor3d": "depth+reflectance", "matcher": "oracle"}
 GRID = {"extractor2d": ["canny", "sobel"], "solver": ["epnp-ransac"]}

@@ -13,13 +13,13 @@ import pytest
 import toy_plugin
 
 from i2pbench.boards import leaderboard
-from i2pbench.pipeline import Combination
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry
 from i2pbench.runs.executors import run_grid
 from i2pbench.runs.invocation import Invocation, history
 from i2pbench.runs.jobs import frame_key, prepare
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination
 
 BASE = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
 # The columns a result must hold, with values of their types; tests add what they check.

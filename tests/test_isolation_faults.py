@@ -13,11 +13,11 @@ import toy_plugin
 from i2pbench.errors import I2PBenchError
 from i2pbench.execution import isolation
 from i2pbench.execution.isolation import fingerprint, isolation_from_env
-from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry
 from i2pbench.runs.executors import run_grid
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination, Pipeline
 
 TOY = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
 STAGES = ["--dataset", "toy", "--extractor", "grid", "--matcher", "truth", "--solver", "truth", "--quiet"]

@@ -20,7 +20,7 @@ from i2pbench.data.nuscenes import NuScenes
 from i2pbench.data.nuscenes_dataroot import build_dataroot
 from i2pbench.data.synthetic.dataset import SyntheticStreets
 from i2pbench.errors import DataError, I2PBenchError, WeightsError
-from i2pbench.weights import check_out
+from i2pbench.weights.checkpoints import check_out
 
 
 def _tree(root: Path) -> dict[str, int]:
@@ -117,11 +117,11 @@ def test_train_refuses_a_learning_rate_that_is_not_finite_and_positive(lr, tmp_p
 def test_training_stops_on_exploding_weights_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch):
     from test_weights_and_training import LEARNED, Clean
 
-    from i2pbench.pipeline import Combination, Pipeline
     from i2pbench.registry.build import build_registry
+    from i2pbench.stages.pipeline import Combination, Pipeline
     from i2pbench.training.config import TrainConfig
     from i2pbench.training.loop import Trainer
-    from i2pbench.weights import load_checkpoint
+    from i2pbench.weights.checkpoints import load_checkpoint
 
     monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
     registry = build_registry((toy_plugin,))
@@ -308,7 +308,7 @@ def test_an_invocations_path_that_is_a_file_is_one_error_and_the_frames_stay(sto
 def test_a_checkpoint_with_malformed_meta_is_refused_naming_the_field(edit, named, tmp_path):
     import torch
 
-    from i2pbench.weights import content_digest, load_checkpoint
+    from i2pbench.weights.checkpoints import content_digest, load_checkpoint
 
     payload = torch.load(SHIPPED, map_location="cpu", weights_only=True)
     meta = json.loads(payload["meta"])

@@ -406,7 +406,7 @@ def test_a_checkpoint_of_python_objects_is_refused_without_advising_to_unpickle_
     import torch
 
     from i2pbench.errors import WeightsError
-    from i2pbench.weights import load_checkpoint
+    from i2pbench.weights.checkpoints import load_checkpoint
 
     torch.save({"meta": "{}", "state": argparse.Namespace(a=1)}, tmp_path / "objects.pt")
     with pytest.raises(WeightsError) as caught:
@@ -432,7 +432,7 @@ def test_a_checkpoint_that_cannot_be_read_says_why(tmp_path, name, reason):
     import torch
 
     from i2pbench.errors import WeightsError
-    from i2pbench.weights import load_checkpoint
+    from i2pbench.weights.checkpoints import load_checkpoint
 
     (tmp_path / "empty.pt").write_bytes(b"")
     torch.save({"state": {}}, tmp_path / "no-meta.pt")

@@ -12,8 +12,8 @@ from test_cli_errors import assert_refused, i2pbench
 from test_data_bad_input import KITTI, needs_kitti
 
 from i2pbench.data.kitti_drives import load_split_file
+from i2pbench.data.yaml_input import AliasRefused, load
 from i2pbench.errors import DataError
-from i2pbench.yaml_input import AliasRefused, load
 
 # nine levels of nine aliases: 9**9 (387 million) leaves from 200 bytes once anything walks it
 BOMB = "{" + ", ".join([f"l0: &l0 [{', '.join(['x'] * 9)}]"] + [

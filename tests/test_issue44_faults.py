@@ -181,7 +181,7 @@ def test_unreadable_sources_say_what_they_are_and_never_advise_running_their_cod
         assert (status, error) == (2, f"i2pbench: error: {tmp_path / name} {what}")
         assert "weights_only" not in error
     from i2pbench.errors import WeightsError
-    from i2pbench.weights import load_init
+    from i2pbench.weights.checkpoints import load_init
 
     for name, what in said.items():  # `train --init-2d`'s reader says the same
         with pytest.raises(WeightsError) as caught:

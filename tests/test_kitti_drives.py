@@ -19,7 +19,7 @@ from i2pbench.data.kitti_drives import (
     parse_fold,
 )
 from i2pbench.errors import DataError
-from i2pbench.weights import load_checkpoint
+from i2pbench.weights.checkpoints import load_checkpoint
 
 FOLDERS = ("kitti_drives", "kitti_real", "kitti_odometry")
 

@@ -59,12 +59,12 @@ LAYER_CODE = {
     "cluster_max": (0, "af4852f06a08"),
     "epropnp": (0, "76452d0c92bd"),  # EPro-PnP's Monte-Carlo pose loss (issue 40, VP2P-Match's training)
     "frame_norm": (0, "b360eba841ba"),
-    "global_pointnet2": (0, "8747a5b05659"),  # BatchedStage, seeded_cloud, deep merge_conf: same outputs
+    "global_pointnet2": (0, "03daa78cf4e8"),  # BatchedStage, seeded_cloud, deep merge_conf; issue 38's import paths
     "kernels": (1, "2aab15a2d71f"),  # FPS as the authors' PointNet++ (issue 39); grid-pruned FPS, ball query: same
     "kpconv": (0, "afae9f47a5ac"),  # KPConv of CoFiI2P's official size (issue 39)
     "mlp": (0, "1e8fb86b56f9"),
     "nodes": (0, "57e284127b45"),
-    "peer_inputs": (2, "94a9d01f020d"),  # a loader card's frame taken as it is (crop, T_init axes)
+    "peer_inputs": (2, "7e1c659e61b7"),  # a loader card's frame taken as it is (crop, T_init axes); issue 38 paths
     "point_pyramid": (0, "89a7e54dc7c8"),  # CoFiI2P's KPConv pyramid (issue 39)
     "pointnet2": (1, "ee6c35457d80"),  # the torch FPS rounds as the compiled one (issue 39); seeded_cloud: same
     "point_voxel": (0, "6454dd9cb5d5"),

@@ -14,11 +14,11 @@ import toy_plugin
 from i2pbench.api import Method, MethodPreset, Row, Size, hookimpl
 from i2pbench.commands import plugins as plugins_command
 from i2pbench.errors import PluginError, WeightsError
-from i2pbench.grid import base_combinations, expand
-from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.registry.build import build_registry
+from i2pbench.runs.grid import base_combinations, expand
 from i2pbench.runs.jobs import prepare
-from i2pbench.weights import file_digest, load_checkpoint, mismatch, save_checkpoint
+from i2pbench.stages.pipeline import Combination, Pipeline
+from i2pbench.weights.checkpoints import file_digest, load_checkpoint, mismatch, save_checkpoint
 
 REFERENCE_ROW = "grid > first > linear > regress > truth"
 
@@ -85,7 +85,7 @@ def test_a_size_may_run_other_components_than_its_method(tmp_path):
 
 
 def test_a_methods_importer_writes_a_checkpoint_of_its_size_recording_the_source(tmp_path):
-    from i2pbench.weights import import_weights
+    from i2pbench.weights.checkpoints import import_weights
 
     source = tmp_path / "release.json"
     source.write_text(json.dumps({"w": [[1.0, 2.0], [3.0, 4.0]], "b": [0.5, -0.5]}))

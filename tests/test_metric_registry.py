@@ -1,6 +1,8 @@
 """A metric declared once, in a plugin, reaches every reader: the store's records, the run's leaderboard, `evaluate`
 and training validation; and the registry refuses a metric it could not aggregate."""
 
+import pickle
+
 import pandas as pd
 import pytest
 import torch
@@ -11,19 +13,21 @@ from i2pbench.api import Metric, hookimpl
 from i2pbench.boards import leaderboard, uncertainty
 from i2pbench.boards.regression_gate import compare, parse_tolerances
 from i2pbench.cli import main
-from i2pbench.errors import PluginError
-from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.protocol import Protocol
+from i2pbench.errors import I2PBenchError, PluginError
 from i2pbench.registry import build
 from i2pbench.registry.build import build_registry
 from i2pbench.registry.listing import components_of
+from i2pbench.runs.executors import run_grid
 from i2pbench.runs.jobs import frame_key, prepare, upstream_key
 from i2pbench.runs.store import ResultsStore
 from i2pbench.scoring.installed import by_name
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination, Pipeline
 from i2pbench.training.config import TrainConfig
 from i2pbench.training.loop import Trainer
 
 COLUMN = "keypoints per match ↓"
+TRUTH = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
 
 
 def keypoints_per_match(scored):
@@ -127,3 +131,28 @@ def test_a_frame_keeps_the_cache_keys_it_had_before_metrics_were_registered(monk
     dataset = registry.dataset("toy")("test")
     assert frame_key(dataset, "a", job, Protocol()) == "b015e1602e1691ae355088c9-1c4d24f82c65"
     assert upstream_key(dataset, "a", job, Protocol()) == "402cc086ad0fe077c2ecc145-1c4d24f82c65"
+
+
+def test_the_run_s_registry_scores_its_frames_and_names_its_board_not_the_installed_one(tmp_path, monkeypatch):
+    """run_grid hands its registry's metrics down to the workers and the board: nothing reads the global registry,
+    so a registry with one more plugin metric scores with it while the installed registry knows no such metric."""
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    own = build_registry((toy_plugin, MetricPlugin()))
+    assert "kp_per_match" not in by_name()  # the installed registry (no plugin selected) has no such metric
+    dataset = own.datasets["toy"]("test", {})
+    records = pd.DataFrame(
+        run_grid(own, [Combination(TRUTH)], dataset, Protocol(), ResultsStore(tmp_path), frame_ids=["a", "c"])
+    )
+    assert records["kp_per_match"].tolist() == [2.0, 2.0]  # 2 keypoints, 1 match, per frame
+    board = leaderboard.build(records, Protocol(), registry=own)
+    assert board[COLUMN].tolist() == [20.0]  # mean 2.0, times 10
+    assert COLUMN not in leaderboard.build(records, Protocol())  # the installed registry's board lacks it
+
+
+def test_metrics_cross_to_workers_by_name_and_one_unknown_there_is_refused_by_name():
+    """a metric's callables are lambdas: it pickles as its name, found again among the worker's installed ones."""
+    builtin = by_name()["acc_pct"]
+    assert pickle.loads(pickle.dumps(builtin)) is builtin
+    alien = Metric("alien_metric", "alien ↑", True, frame=lambda scored: 1.0)
+    with pytest.raises(I2PBenchError, match="metric 'alien_metric' is not installed in this process"):
+        pickle.loads(pickle.dumps(alien))

@@ -7,9 +7,9 @@ import pytest
 from conftest import SAMPLE_DATA, needs_sample
 from scipy.spatial.transform import Rotation
 
-from i2pbench.geometry import make_transform, rot_z
-from i2pbench.protocol import Protocol
+from i2pbench.geometry.transforms import make_transform, rot_z
 from i2pbench.scoring.pose import kept, pose_errors
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.scoring.rules import ScoringRules
 from i2pbench.scoring.score import summarize
 
@@ -83,7 +83,8 @@ def test_accuracy_counts_every_frame_and_filtering_keeps_only_good_ones():
 def test_thresholds_are_parameters():
     strict = ScoringRules(acc_rre_deg=2.0, acc_rte_m=1.0)
     assert summarize(_errors([0.5, 1.5], [1.0, 3.0]), strict)["acc_pct"] == pytest.approx(50.0)
-    assert kept(pd.Series([0.5, 1.5]), pd.Series([1.0, 3.0]), Protocol(filter_rte_m=1.0)).tolist() == [True, False]
+    loose = Protocol(rules=ScoringRules(filter_rte_m=1.0))
+    assert kept(pd.Series([0.5, 1.5]), pd.Series([1.0, 3.0]), loose).tolist() == [True, False]
 
 
 def test_no_kept_frames_gives_nan_means():

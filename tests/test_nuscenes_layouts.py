@@ -19,10 +19,10 @@ from i2pbench.data.nuscenes import NuScenes, read_sweep
 from i2pbench.data.nuscenes_dataroot import build_dataroot
 from i2pbench.data.peer_nuscenes import CoFiI2PNuScenes, CorrI2PNuScenes
 from i2pbench.errors import DataError, I2PBenchError
-from i2pbench.geometry import invert
-from i2pbench.protocol_peer import draw_pose
+from i2pbench.geometry.transforms import invert
 from i2pbench.scoring import installed
 from i2pbench.scoring.cards import COFII2P, CORRI2P
+from i2pbench.scoring.protocol_peer import draw_pose
 
 RECORDS = SAMPLE_DATA / "nuscenes_real"
 FIRST_SAMPLE = "b5989651183643369174912bc5641d3b"  # scene-0916_sample00, the first keyframe in time

@@ -25,10 +25,10 @@ from i2pbench.api import Matches
 from i2pbench.cli import main
 from i2pbench.errors import StageError
 from i2pbench.layers.peer_inputs import LIDAR_TO_CAMERA_AXES, frame_crop
-from i2pbench.pipeline import STAGE_ORDER, Combination, Pipeline
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
 from i2pbench.scoring import installed
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import STAGE_ORDER, Combination, Pipeline
 from i2pbench.types import SensorFrame
 
 K = np.array([[700.0, 0.0, 620.0], [0.0, 700.0, 188.0], [0.0, 0.0, 1.0]])

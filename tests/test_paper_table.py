@@ -15,8 +15,8 @@ from i2pbench.boards import paper_table
 from i2pbench.boards.leaderboard import ACC, ACC_SKILL, CHANCE, MODEL_SIZE, RTE, TRUE_MATCHES, write
 from i2pbench.cli import main
 from i2pbench.errors import I2PBenchError, PluginError
-from i2pbench.grid import base_combinations
 from i2pbench.registry.build import build_registry, default_registry
+from i2pbench.runs.grid import base_combinations
 
 TRUTH = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
 CONSTANT = {**TRUTH, "solver": "constant"}

@@ -3,11 +3,11 @@ import pytest
 import toy_plugin
 
 from i2pbench.errors import PluginError
-from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry
 from i2pbench.runs.executors import run_grid
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination, Pipeline
 
 BASE = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
 

@@ -72,7 +72,7 @@ def test_each_allowed_exception_is_still_there():
     ("source", "expected"),
     [
         ("from i2pbench.api import Frame\nfrom i2pbench.layers.pointnet2 import gather\n", []),
-        ("from i2pbench.geometry import project\n", ["outside the public API"]),
+        ("from i2pbench.geometry.transforms import project\n", ["outside the public API"]),
         ("import i2pbench.training.batching\n", ["outside the public API"]),
         ("from i2pbench_corri2p.points import linear_mlp\n", ["from the plugin in plugins/corri2p"]),
         ("from i2pbench_deepi2p.labels import frustum_labels\n", []),  # its own package

@@ -167,7 +167,7 @@ def _eager_classic():
 def test_the_classic_plugin_by_path_gives_the_classes_and_results_an_eager_registration_gives(isolated):
     from i2pbench_classic import plugin as lazy_classic
 
-    from i2pbench.pipeline import Combination, Pipeline
+    from i2pbench.stages.pipeline import Combination, Pipeline
     from i2pbench.testing import synthetic_frame
 
     lazy, eager = build_registry((lazy_classic,), strict=True), build_registry((_eager_classic(),), strict=True)

@@ -16,7 +16,7 @@ import torch
 from conftest import sample
 
 from i2pbench.layers import point_pyramid as pyramid
-from i2pbench.protocol_peer import draw_points, voxel_grid
+from i2pbench.scoring.protocol_peer import draw_points, voxel_grid
 
 POINTS = 8192
 

@@ -5,8 +5,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from i2pbench.pipeline import Combination, Pipeline
 from i2pbench.registry.build import default_registry
+from i2pbench.stages.pipeline import Combination, Pipeline
 from i2pbench.testing import assert_conforms, synthetic_frame
 from i2pbench.types import Keypoints2D
 
@@ -91,7 +91,7 @@ def test_the_weights_identity_is_in_the_config_and_on_an_untrained_row():
 def test_a_checkpoint_trained_over_the_encoder_names_its_pretrained_weights_on_the_row(tmp_path):
     from i2pbench_pretrained.weights import sha256, weight_file
 
-    from i2pbench.weights import apply_checkpoint, load_checkpoint, save_checkpoint
+    from i2pbench.weights.checkpoints import apply_checkpoint, load_checkpoint, save_checkpoint
 
     digest = sha256(weight_file("aliked-n16.pth"))[:8]
     registry = default_registry()

@@ -5,12 +5,13 @@ import numpy as np
 import pytest
 
 from i2pbench.errors import DataError
-from i2pbench.geometry import invert, transform_points
-from i2pbench.protocol import Protocol
+from i2pbench.geometry.transforms import invert, transform_points
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.types import SensorFrame
 
 SNIPPET = (
-    "from i2pbench.protocol import Protocol; print(Protocol(seed=7).random_transform('kitti', '00/000003').tolist())"
+    "from i2pbench.scoring.protocol import Protocol; "
+    "print(Protocol(seed=7).random_transform('kitti', '00/000003').tolist())"
 )
 
 

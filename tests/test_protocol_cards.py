@@ -24,12 +24,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from i2pbench.geometry import invert
-from i2pbench.protocol import Protocol
+from i2pbench.geometry.transforms import invert
 from i2pbench.registry.build import build_registry
 from i2pbench.registry.hookspecs import hookimpl
 from i2pbench.scoring import cards, installed
 from i2pbench.scoring.cards import NATIVE, ProtocolCard
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.scoring.rules import ScoringRules
 from i2pbench.scoring.score import frame_errors, score
 
@@ -149,7 +149,7 @@ def test_the_default_card_is_the_protocol_every_stored_result_was_made_under():
     corri2p = installed.find("corri2p").protocol()
     assert corri2p.card()["name"] == "corri2p" and corri2p.card()["version"] == 2
     assert corri2p.identity() != Protocol().identity()
-    assert Protocol(**corri2p.card()) == corri2p  # read back from an invocation record
+    assert installed.read_back(corri2p.card()) == corri2p  # read back from an invocation record, its rules the card's
 
 
 def test_a_run_can_give_every_card_its_kitti_inputs_but_deepi2ps_and_no_accumulated_sweeps():
@@ -206,10 +206,31 @@ def test_an_unknown_protocol_suggests_the_closest():
         installed.find("corri2")
 
 
-def test_the_cards_default_name_and_version_are_the_protocols():
-    from i2pbench import protocol
+def test_the_cards_default_name_version_and_rules_are_the_protocols():
+    from i2pbench.scoring import protocol
 
     assert (cards.DEFAULT_NAME, cards.DEFAULT_VERSION) == (protocol.DEFAULT_NAME, protocol.DEFAULT_VERSION)
+    assert protocol.DEFAULT_RULES == cards.EDGEREGNET.rules
+
+
+def test_a_protocol_holds_its_card_s_rules_and_the_default_card_is_a_registered_card(monkeypatch):
+    """the rules travel with the Protocol (no look-up by name when a run is scored); the default card is in every
+    registry, owned by i2pbench when the plugins are blocked, and no plugin takes its name."""
+    deepi2p = cards.DEEPI2P.protocol(0, "kitti")
+    assert deepi2p.rules is cards.DEEPI2P.rules and deepi2p.rules.drop_all_inliers  # DeepI2P's cost-0 frames
+    assert Protocol().rules == cards.EDGEREGNET.rules and Protocol().acc_rre_deg == 5.0
+    assert Protocol().with_thresholds(acc_rre_deg=1.0, acc_rte_m=None).rules == ScoringRules(acc_rre_deg=1.0)
+    monkeypatch.setenv("I2PBENCH_LOAD_PLUGINS", "")
+    blocked = build_registry()
+    assert list(installed.installed(blocked)) == ["edgeregnet"] and blocked.protocols.plugin("edgeregnet") == "i2pbench"
+
+    class Usurper:
+        @hookimpl
+        def register_protocols(self, register):
+            register(ProtocolCard("edgeregnet", 1, "x", NATIVE, None, ScoringRules(ddof=1), ()))
+
+    with pytest.raises(Exception, match="protocol name 'edgeregnet' is registered by both plugin 'i2pbench' and"):
+        build_registry(extra_plugins=(Usurper(),), strict=True)
 
 
 def test_docs_protocol_cites_every_line_each_card_follows():

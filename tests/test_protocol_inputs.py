@@ -1,15 +1,15 @@
-"""A card's inputs made from a dataset's frame (i2pbench.protocol_inputs): the peers' resize and centre crop with K,
-their voxel grid and point sampling, and poses drawn in the camera frame; values worked out by hand."""
+"""A card's inputs made from a dataset's frame (i2pbench.scoring.protocol_inputs): the peers' resize and centre crop
+with K, their voxel grid and point sampling, and poses drawn in the camera frame; values worked out by hand."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from i2pbench.geometry import invert, transform_points
-from i2pbench.protocol import Protocol
-from i2pbench.protocol_inputs import image_geometry, sample, transform_K, voxel_means
+from i2pbench.geometry.transforms import invert, transform_points
 from i2pbench.scoring import installed
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.scoring.protocol_inputs import image_geometry, sample, transform_K, voxel_means
 from i2pbench.types import SensorFrame
 
 K = np.array([[700.0, 0.0, 620.0], [0.0, 700.0, 188.0], [0.0, 0.0, 1.0]])

@@ -7,12 +7,12 @@ import pytest
 
 from i2pbench.boards import leaderboard
 from i2pbench.cli import main
-from i2pbench.protocol import Protocol
 from i2pbench.registry import build
 from i2pbench.registry.hookspecs import hookimpl
 from i2pbench.runs.store import ResultsStore
 from i2pbench.scoring import installed
 from i2pbench.scoring.cards import NATIVE, ProtocolCard
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.scoring.rules import ScoringRules
 from i2pbench.scoring.score import score
 from i2pbench.scoring.table import NEEDS_RERUN

@@ -7,10 +7,10 @@ import pandas as pd
 import pytest
 
 import i2pbench
-from i2pbench.calls import OptionError
 from i2pbench.cli import main
+from i2pbench.commands.calls import OptionError
+from i2pbench.commands.results import CompareResult, EvaluateResult, RunResult
 from i2pbench.errors import PluginError
-from i2pbench.results import CompareResult, EvaluateResult, RunResult
 
 SMALL = {"frames": 2, "threads": 1, "quiet": True}  # the default pipeline on the synthetic test split's first frames
 

@@ -13,10 +13,10 @@ import pandas as pd
 from conftest import nuscenes_sample
 
 from i2pbench.cli import main
-from i2pbench.protocol import Protocol
 from i2pbench.report import sequences
 from i2pbench.report.html import write_report
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.scoring.recall import by_sequence, cells, sequence
 
 INF = math.inf

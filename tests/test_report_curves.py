@@ -8,10 +8,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from i2pbench.protocol import Protocol
 from i2pbench.report import curves, html
 from i2pbench.report.rundir import best_and_worst, frame_score, pose
 from i2pbench.scoring.pose import success
+from i2pbench.scoring.protocol import Protocol
 
 INF = math.inf
 

@@ -20,10 +20,10 @@ from matplotlib.text import Text
 from matplotlib.transforms import Bbox
 
 from i2pbench.boards.leaderboard import LATENCY_MEDIAN, MEAN_ROW, stage_latency
-from i2pbench.components import STAGE_ORDER
-from i2pbench.protocol import Protocol
 from i2pbench.report import curves, robustness
 from i2pbench.report.labels import number, tick, wrapped
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.components import STAGE_ORDER
 
 CLASSIC = [f"{e} > depth+reflectance > {m} > epnp-ransac" for e in ("lsd", "canny") for m in ("oracle", "mutual-nn")]
 EDGEREGNET = "lsd > depth+reflectance > superpoint-cnn > pointnet2 > attention > lightglue > epnp-ransac (cpu-size)"

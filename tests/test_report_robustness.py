@@ -14,11 +14,11 @@ import pytest
 from i2pbench.boards import leaderboard as lb
 from i2pbench.cli import main
 from i2pbench.errors import DataError
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
 from i2pbench.report import overlay, robustness
 from i2pbench.report.rundir import load_run, open_dataset
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
 
 SPECS = "clean,intrinsic-error:1,intrinsic-error:5,gaussian-noise:3,beam-reduction:5"
 COMBINATION = "lsd > depth+reflectance > oracle > epnp-ransac"

@@ -7,14 +7,14 @@ import pandas as pd
 import pytest
 import toy_plugin
 
-from i2pbench.pipeline import Combination
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry
 from i2pbench.runs.executors import Collector, plan
 from i2pbench.runs.jobs import frame_key, prepare
 from i2pbench.runs.store import ResultsStore
 from i2pbench.runs.tasks import Task, Work
 from i2pbench.runs.worker import Worker
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination
 
 TOY = {"extractor2d": "grid", "extractor3d": "first", "matcher": "truth", "solver": "truth"}
 PER_RUN = {"invocation", "wall_s", "t_load_s", "t_total_s"}  # what two computations of a frame may differ in

@@ -10,14 +10,14 @@ import toy_plugin
 
 from i2pbench.boards import leaderboard
 from i2pbench.errors import I2PBenchError
-from i2pbench.grid import expand
-from i2pbench.pipeline import Combination
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry, default_registry
 from i2pbench.runs import executors
 from i2pbench.runs.executors import LocalExecutor, Plan, Task, make_executor, run_grid
+from i2pbench.runs.grid import expand
 from i2pbench.runs.invocation import history
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination
 
 BASE = {"extractor3d": "depth", "matcher": "oracle", "solver": "epnp-ransac"}
 GRID = {"extractor2d": ["canny", "sobel"]}

@@ -12,15 +12,15 @@ import pytest
 
 from i2pbench.boards import leaderboard
 from i2pbench.data.kitti import KittiOdometry
-from i2pbench.grid import expand
-from i2pbench.pipeline import Combination
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
 from i2pbench.runs import executors, ray_executor
 from i2pbench.runs.executors import run_grid
+from i2pbench.runs.grid import expand
 from i2pbench.runs.jobs import prepare
 from i2pbench.runs.ray_executor import RayExecutor
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination
 
 ray = pytest.importorskip("ray", reason="the ray extra is not installed (pip install 'i2pbench[ray]')")
 

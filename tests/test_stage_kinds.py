@@ -7,11 +7,11 @@ import dataclasses
 import numpy as np
 
 from i2pbench.commands.options import add_stage_options, stage_choices
-from i2pbench.components import STAGE_BASES, STAGE_ORDER, STAGES, Component
-from i2pbench.pipeline import REQUIRED_STAGES
 from i2pbench.registry import hookspecs
 from i2pbench.stages import contracts
+from i2pbench.stages.components import STAGE_BASES, STAGE_ORDER, STAGES, Component
 from i2pbench.stages.inputs import StageInputs
+from i2pbench.stages.pipeline import REQUIRED_STAGES
 from i2pbench.stages.trace import Failure, FrameOutcome, StageRecord, Upstream
 from i2pbench.types import Features, Keypoints2D, Keypoints3D, Matches, PoseEstimate
 

@@ -11,8 +11,8 @@ from i2pbench.boards import leaderboard, stats, uncertainty
 from i2pbench.boards.paper_table import TableRow, build
 from i2pbench.boards.regression_gate import compare, format_report, parse_tolerances
 from i2pbench.cli import main
-from i2pbench.components import STAGE_ORDER
 from i2pbench.scoring.installed import by_name
+from i2pbench.stages.components import STAGE_ORDER
 
 
 def test_the_wilson_interval_of_9_successes_in_20_frames():

@@ -13,7 +13,7 @@ from i2pbench.data.synthetic import SyntheticStreets
 from i2pbench.data.synthetic.kitti_writer import generate_kitti, simulate
 from i2pbench.data.synthetic.rig import camera2
 from i2pbench.errors import DataError
-from i2pbench.geometry import in_image, project
+from i2pbench.geometry.transforms import in_image, project
 from i2pbench.types import SensorFrame
 
 

@@ -9,10 +9,10 @@ import toy_plugin
 
 from i2pbench.api import Encoder2D, Extractor2D, Features, Keypoints2D, Matcher, Matches
 from i2pbench.execution.isolation import isolated
-from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.protocol import Protocol
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.stages.calling import StageInputs, call_stage
 from i2pbench.stages.contracts import ContractError
+from i2pbench.stages.pipeline import Combination, Pipeline
 from i2pbench.testing import check_component, synthetic_frame
 from i2pbench.training.batching import BatchForward
 from i2pbench.training.samples import TrainingSamples, collate_samples

@@ -10,7 +10,7 @@ import pytest
 import torch
 from conftest import sample
 
-from i2pbench.weights import load_checkpoint
+from i2pbench.weights.checkpoints import load_checkpoint
 
 TINY = [  # EdgeRegNet shrunk to train a step in well under a second; the CPU preset's stages and extractors
     "--conf", "extractor2d.max_keypoints=256", "--conf", "extractor3d.max_keypoints=256",

@@ -5,7 +5,7 @@ import torch
 from test_edgeregnet_training import TINY, one_thread, tiny_frame, tiny_modules  # noqa: F401 (an autouse fixture)
 
 from i2pbench.api import Keypoints2D, Keypoints3D
-from i2pbench.learned import BatchedStage
+from i2pbench.stages.learned import BatchedStage
 from i2pbench.training.batching import BatchForward, collate, length_mask, pad_stack, prepare_stage
 from i2pbench.training.samples import collate_samples
 

@@ -8,7 +8,7 @@ import pytest
 import torch
 from test_train_cli import TINY  # EdgeRegNet's CPU preset shrunk to train a step in well under a second
 
-from i2pbench.weights import load_checkpoint
+from i2pbench.weights.checkpoints import load_checkpoint
 
 
 def train(shared_data, tmp_path, out, steps, *extra) -> subprocess.CompletedProcess:

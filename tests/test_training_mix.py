@@ -10,12 +10,12 @@ import toy_plugin
 
 from i2pbench.api import Extractor3D, Keypoints3D, SensorFrame, hookimpl
 from i2pbench.errors import I2PBenchError
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.training.lidar_dropout import LidarDropout, thin
 from i2pbench.training.mix import MixedSource, SourceSpec, check_mix, choose_source, open_source, parse_source
 from i2pbench.training.samples import TrainingSamples
-from i2pbench.weights import data_label, load_checkpoint
+from i2pbench.weights.checkpoints import data_label, load_checkpoint
 
 
 class Clean(toy_plugin.ToyDataset):
@@ -248,7 +248,7 @@ def test_a_mixed_checkpoint_records_its_sources_and_a_run_without_the_mix_is_a_n
     import test_weights_and_training as toy
     import torch
 
-    from i2pbench.pipeline import Combination, Pipeline
+    from i2pbench.stages.pipeline import Combination, Pipeline
     from i2pbench.training.config import TrainConfig
     from i2pbench.training.lineage import training_meta
     from i2pbench.training.loop import Trainer

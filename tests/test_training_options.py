@@ -10,11 +10,11 @@ from i2pbench_edgeregnet.pointnet2 import PointNet2Encoder
 from test_edgeregnet_training import TINY, one_thread  # noqa: F401 (an autouse fixture)
 from test_train_cli import train
 
-from i2pbench.protocol import Protocol
 from i2pbench.scoring.installed import aggregates
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.training.loop import spread
 from i2pbench.training.runtime import compile_stages
-from i2pbench.weights import load_checkpoint
+from i2pbench.weights.checkpoints import load_checkpoint
 
 
 def test_validation_frames_are_spread_evenly_over_the_split():

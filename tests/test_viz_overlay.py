@@ -10,10 +10,10 @@ from conftest import SAMPLE_DATA, sample
 
 from i2pbench.cli import main
 from i2pbench.commands.viz import resolve_frame
-from i2pbench.geometry import in_image, project
-from i2pbench.pipeline import Combination, Pipeline
+from i2pbench.geometry.transforms import in_image, project
 from i2pbench.registry.build import default_registry
 from i2pbench.report import draw, overlay
+from i2pbench.stages.pipeline import Combination, Pipeline
 from i2pbench.testing.frames import kitti_frame, synthetic_frame, with_image
 
 KITTI = SAMPLE_DATA / "kitti_odometry"

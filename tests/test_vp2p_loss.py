@@ -21,14 +21,14 @@ from i2pbench_vp2p_match.official.stages import CROP, SUP, unpadded
 from i2pbench.api import Features, StageError
 from i2pbench.boards import leaderboard
 from i2pbench.cli import main
-from i2pbench.grid import expand
-from i2pbench.pipeline import Pipeline
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
+from i2pbench.runs.grid import expand
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Pipeline
 from i2pbench.training.batching import collate
 from i2pbench.training.lineage import continued
 from i2pbench.training.trainable import check_trainable
-from i2pbench.weights import data_label, load_checkpoint
+from i2pbench.weights.checkpoints import data_label, load_checkpoint
 
 CHECKOUT = os.environ.get("I2PBENCH_VP2P_CHECKOUT")
 REFERENCE = Path(os.environ.get("I2PBENCH_VP2P_REFERENCE") or Path(__file__).parent / "data" / "vp2p_reference")

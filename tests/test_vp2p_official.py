@@ -19,7 +19,7 @@ from i2pbench.boards import leaderboard
 from i2pbench.cli import main
 from i2pbench.registry.build import default_registry
 from i2pbench.testing.recipe import recipe_state
-from i2pbench.weights import load_checkpoint
+from i2pbench.weights.checkpoints import load_checkpoint
 
 SHAPES = Path(__file__).parent / "data" / "vp2p_reference" / "state_dict_shapes.json"
 

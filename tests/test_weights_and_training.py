@@ -7,16 +7,22 @@ import toy_plugin
 
 from i2pbench.api import Extractor2D, Keypoints2D, hookimpl
 from i2pbench.errors import PluginError, WeightsError
-from i2pbench.pipeline import Combination, Pipeline
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import build_registry
 from i2pbench.runs.executors import run_grid
 from i2pbench.runs.jobs import prepare
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination, Pipeline
 from i2pbench.training.config import TrainConfig
 from i2pbench.training.lineage import training_meta
 from i2pbench.training.loop import Trainer
-from i2pbench.weights import apply_checkpoint, data_label, load_checkpoint, save_checkpoint, select_checkpoint
+from i2pbench.weights.checkpoints import (
+    apply_checkpoint,
+    data_label,
+    load_checkpoint,
+    save_checkpoint,
+    select_checkpoint,
+)
 
 LEARNED = {
     "extractor2d": "grid",

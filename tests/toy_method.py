@@ -35,7 +35,7 @@ def import_release(path: Path):
 
     import torch
 
-    from i2pbench.weights import ImportedWeights
+    from i2pbench.weights.checkpoints import ImportedWeights
 
     data = json.loads(path.read_text())
     state = {"encoder2d": {"layer.weight": torch.tensor(data["w"]), "layer.bias": torch.tensor(data["b"])}}

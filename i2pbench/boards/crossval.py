@@ -12,9 +12,9 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import pandas as pd
 
-from ..protocol import Protocol
 from ..scoring.installed import by_name
 from ..scoring.metrics import BUILTIN
+from ..scoring.protocol import Protocol
 from .leaderboard import ACC_SKILL, TRUE_MATCHES
 
 BOOTSTRAP_DRAWS = 2000

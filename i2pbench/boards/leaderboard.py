@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..components import STAGE_ORDER
-from ..protocol import Protocol
+from ..registry import build as registry_build
+from ..registry.catalog import Registry
 from ..scoring import installed as installed_metrics
 from ..scoring import metrics as metric_registry
 from ..scoring import recall
@@ -38,6 +38,8 @@ from ..scoring.metrics import (  # noqa: F401 (the board's column names, read fr
     Metric,
 )
 from ..scoring.pose import kept
+from ..scoring.protocol import Protocol
+from ..stages.components import STAGE_ORDER
 from . import uncertainty
 
 GROUP = ["dataset", "split", "combination", "weights"]
@@ -110,13 +112,18 @@ def _row(records: pd.DataFrame, protocol: Protocol, metrics: tuple[Metric, ...])
 
 
 def build(
-    records: pd.DataFrame, protocol: Protocol | None = None, metrics: tuple[Metric, ...] | None = None
+    records: pd.DataFrame,
+    protocol: Protocol | None = None,
+    metrics: tuple[Metric, ...] | None = None,
+    registry: Registry | None = None,
 ) -> pd.DataFrame:
-    """Aggregate per-frame records into the leaderboard, one column per registered metric (`metrics`, default
-    every installed one): clean rows first, then each corruption (in run order) by severity, and within each of
-    those best Acc. first."""
+    """Aggregate per-frame records into the leaderboard, one column per metric (`metrics`, default the registry's:
+    the built-in ones and its plugins'): clean rows first, then each corruption (in run order) by severity, and
+    within each of those best Acc. first. `registry` (default: the installed plugins') also names each row's
+    method."""
     protocol = protocol or Protocol()
-    metrics = metrics if metrics is not None else installed_metrics.active()
+    registry = registry or registry_build.default_registry()
+    metrics = metrics if metrics is not None else installed_metrics.active(registry)
     records = rescored(_with_condition(records), protocol)  # a non-default card's rules (scoring.cards)
     rows = [
         {**dict(zip(GROUP + CONDITION, key, strict=True)), **_row(group, protocol, metrics)}
@@ -128,7 +135,7 @@ def build(
     rank = board["corruption"].map(lambda c: 0 if c == "" else order[c]) * 100 + board["severity"]
     board = board.iloc[np.argsort(rank.to_numpy(), kind="stable")].reset_index(drop=True)
     board["severity"] = [str(int(v)) if c else "" for c, v in zip(board["corruption"], board["severity"], strict=True)]
-    board["method"] = _methods(board)
+    board["method"] = _methods(board, registry)
     board["protocol"] = label(protocol)  # the card and its version
     named = {m.name: m for m in metrics}
     if "acc_pct" in named and "rre_mean" in named:  # rows are ranked by these two
@@ -136,13 +143,11 @@ def build(
     return board[[*GROUP, *CONDITION, *(c for c in board.columns if c not in GROUP + CONDITION)]]
 
 
-def _methods(board: pd.DataFrame) -> list[str]:
-    """Each row's method (DeepI2P, EdgeRegNet, ...; "classic" for the classic plugin's matchers), as the installed
+def _methods(board: pd.DataFrame, registry: Registry) -> list[str]:
+    """Each row's method (DeepI2P, EdgeRegNet, ...; "classic" for the classic plugin's matchers), as the registry's
     plugins declare them (`methods.method_of`)."""
-    from ..registry.build import default_registry
     from ..registry.methods import method_of
 
-    registry = default_registry()
     methods, owner = dict(registry.methods), registry.components["matcher"].owners()
     stages = board[list(STAGE_ORDER)].astype(str).to_dict("records")
     return [method_of(methods, owner, row) for row in stages]
@@ -173,37 +178,19 @@ def _displayed(columns: list[str], metrics: tuple[Metric, ...]) -> list[str]:
 
 
 DISPLAY = _displayed(
-    [
-        "dataset",
-        "split",
-        "combination",
-        "method",
-        "corruption",
-        "severity",
-        "weights",
-        "weights_trained_on",
-        "frames",
-        "failures",
-        ACC,
-        CHANCE,
-        ACC_SKILL,
-        RTE,
-        RRE,
-        INLIER_RATIO,
-        TRUE_MATCHES,
-        MODEL_SIZE,
-        LATENCY_MEDIAN,
-        LATENCY_P90,
-    ],
+    ["dataset", "split", "combination", "method", "corruption", "severity", "weights", "weights_trained_on", "frames",
+     "failures", ACC, CHANCE, ACC_SKILL, RTE, RRE, INLIER_RATIO, TRUE_MATCHES, MODEL_SIZE, LATENCY_MEDIAN, LATENCY_P90],
     metric_registry.BUILTIN,
-)
+)  # fmt: skip
 
 
-def to_markdown(board: pd.DataFrame, columns: list[str] | None = None) -> str:
-    """A Markdown table of `columns` (default DISPLAY, then the columns of metrics plugins registered with their
-    intervals, less the columns that are empty in every row)."""
+def to_markdown(
+    board: pd.DataFrame, columns: list[str] | None = None, metrics: tuple[Metric, ...] | None = None
+) -> str:
+    """A Markdown table of `columns` (default DISPLAY, then the columns of the plugins' metrics among `metrics`,
+    default the installed ones, with their intervals, less the columns that are empty in every row)."""
     if columns is None:
-        plugins = installed_metrics.active()[len(metric_registry.BUILTIN) :]
+        plugins = (metrics or installed_metrics.active())[len(metric_registry.BUILTIN) :]
         extra = _displayed([m.column for m in plugins if m.column], plugins)
         columns = [c for c in DISPLAY + extra if c in board and not (board[c].astype(str) == "").all()]
     shown = board[[c for c in columns if c in board]].copy()
@@ -216,14 +203,15 @@ def to_markdown(board: pd.DataFrame, columns: list[str] | None = None) -> str:
     return "\n".join([header, rule, *lines])
 
 
-def write(board: pd.DataFrame, stem: str | Path) -> list[Path]:
-    """Write `<stem>.csv`, `<stem>.md` and `<stem>.parquet`, each atomically (a reader never sees half a table)."""
+def write(board: pd.DataFrame, stem: str | Path, metrics: tuple[Metric, ...] | None = None) -> list[Path]:
+    """Write `<stem>.csv`, `<stem>.md` (`to_markdown`'s columns for `metrics`) and `<stem>.parquet`, each atomically
+    (a reader never sees half a table)."""
     stem = Path(stem)
     stem.parent.mkdir(parents=True, exist_ok=True)
     paths = [stem.with_name(f"{stem.name}.{ext}") for ext in ("csv", "md", "parquet")]
     writers = (
         lambda p: board.to_csv(p, index=False, na_rep="nan"),  # an explicit NaN, so "" stays an empty string
-        lambda p: p.write_text(to_markdown(board) + "\n"),
+        lambda p: p.write_text(to_markdown(board, metrics=metrics) + "\n"),
         lambda p: board.to_parquet(p, index=False),
     )
     for path, writer in zip(paths, writers, strict=True):

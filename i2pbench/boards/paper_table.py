@@ -18,8 +18,8 @@ from pathlib import Path
 import pandas as pd
 
 from ..errors import I2PBenchError
-from ..grid import expand
 from ..registry.catalog import Registry
+from ..runs.grid import expand
 from ..scoring import installed as installed_metrics
 from . import uncertainty
 from .leaderboard import ACC, ACC_SKILL, CHANCE, LATENCY_MEDIAN, MODEL_SIZE, RRE, RTE, TRUE_MATCHES, to_markdown

@@ -28,10 +28,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..components import STAGE_ORDER
 from ..errors import I2PBenchError
 from ..scoring import installed as installed_metrics
 from ..scoring import metrics as metric_registry
+from ..stages.components import STAGE_ORDER
 from . import uncertainty
 from .leaderboard import (
     ACC,

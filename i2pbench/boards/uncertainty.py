@@ -16,8 +16,8 @@ from collections.abc import Iterable
 import numpy as np
 import pandas as pd
 
-from ..protocol import Protocol
 from ..scoring.metrics import Metric
+from ..scoring.protocol import Protocol
 from . import stats
 
 DIGEST = "frames digest"

@@ -11,7 +11,7 @@ import sys
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from ..results import CompareResult
+    from .results import CompareResult
 
 EXIT_CODES = "exit status: 0 no regression; 1 a baseline row regressed or is missing; 2 the gate could not run (a "
 EXIT_CODES += "table missing, empty, header-only, binary, ragged or not a leaderboard; a bad --tolerance)"
@@ -51,8 +51,8 @@ def execute(args: argparse.Namespace) -> CompareResult:
     """The verdict (the CLI's and `i2pbench.compare`'s one path); the report goes to stdout only for the CLI."""
     from ..boards.regression_gate import compare, format_report, parse_tolerances, read_board
     from ..errors import I2PBenchError
-    from ..results import CompareResult
     from ..runs.board_env import warnings
+    from .results import CompareResult
 
     tolerances = parse_tolerances(args.tolerance)
     new, base = read_board(args.new, "new leaderboard"), read_board(args.baseline, "baseline")

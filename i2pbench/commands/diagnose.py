@@ -54,10 +54,10 @@ def run(args: argparse.Namespace) -> int:
     import pandas as pd
 
     from ..data.skipping import loaded_frames
-    from ..diagnostics import edge_diagnostics_grid, summarize_edge_diagnostics
+    from ..diagnostics.edges import edge_diagnostics_grid, summarize_edge_diagnostics
     from ..errors import I2PBenchError
-    from ..protocol import Protocol
     from ..registry.build import default_registry
+    from ..scoring.protocol import Protocol
 
     registry = default_registry()
     dataset = open_dataset(registry, args)

@@ -11,7 +11,8 @@ from typing import Any
 from .options import add_data_options, open_dataset, positive_int, yaml_setting
 
 DECILES = (10, 50, 90)
-STATISTICS = {  # the table's rows, in order (i2pbench.domain_gap computes them); docs/diagnose.md says the same
+# the table's rows, in order (i2pbench.diagnostics.domain_gap computes them); docs/diagnose.md says the same
+STATISTICS = {
     "frames": "frames summarised (no std)",
     **{f"{n}_pixels": f"{n} edge pixels per image, uncapped" for n in ("lsd", "canny")},
     **{f"{n}_points": f"{n} edge points per scan, uncapped" for n in ("depth", "reflectance", "depth+reflectance")},
@@ -95,10 +96,10 @@ def chosen_frames(registry: Any, args: argparse.Namespace) -> tuple[Any, list[st
 
 def run(args: argparse.Namespace) -> int:
     from ..data.skipping import loaded_frames
-    from ..domain_gap import gap_extractors, side_by_side, summarize_frames, to_markdown
+    from ..diagnostics.domain_gap import gap_extractors, side_by_side, summarize_frames, to_markdown
     from ..errors import I2PBenchError
-    from ..protocol import Protocol
     from ..registry.build import default_registry
+    from ..scoring.protocol import Protocol
 
     if args.out and Path(args.out).suffix not in OUT_SUFFIXES:
         raise I2PBenchError(f"--out {args.out}: expected a .csv or .md file")
@@ -118,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
 
 def write(table: Any, path: Path) -> None:
     """CSV or Markdown by the suffix; an unwritable path is one error line (the table is already printed)."""
-    from ..domain_gap import to_markdown
+    from ..diagnostics.domain_gap import to_markdown
     from ..errors import I2PBenchError
 
     text = to_markdown(table) + "\n" if path.suffix == ".md" else table.to_csv(index=False, na_rep="nan")

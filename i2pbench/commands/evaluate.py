@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from ..results import EvaluateResult
+    from .results import EvaluateResult
 
 THRESHOLDS = {  # option -> (protocol card field, metavar, what it sets)
     "--acc-rre": ("acc_rre_deg", "DEG", "success needs RRE below this"),
@@ -56,9 +56,9 @@ def execute(args: argparse.Namespace) -> EvaluateResult:
     from ..boards import leaderboard
     from ..boards.out_stem import board_stem
     from ..errors import I2PBenchError
-    from ..results import EvaluateResult
     from ..runs import board_env
     from ..runs.evaluate import evaluate
+    from .results import EvaluateResult
 
     echo = getattr(args, "echo", True)
     args.out = board_stem(args.out)  # as run's: a device or folder refused, board.csv read as the stem board

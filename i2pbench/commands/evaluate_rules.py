@@ -9,15 +9,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from ..results import EvaluateResult
+    from .results import EvaluateResult
 
 
 def run_rules(args: argparse.Namespace, thresholds: dict[str, float | None], echo: bool = True) -> EvaluateResult:
     """The table (printed when `echo`) and where it was written."""
     from ..errors import I2PBenchError
-    from ..results import EvaluateResult
     from ..runs.evaluate import evaluate
     from ..scoring.table import chosen, notes, rules_table, to_markdown
+    from .results import EvaluateResult
 
     if not args.rules:
         raise I2PBenchError("--rules-only goes with --rules NAMES (or --rules all)")

@@ -7,7 +7,7 @@ import argparse
 import math
 from typing import Any
 
-from ..components import STAGES
+from ..stages.components import STAGES
 
 CONF_HELP = "component config override (VALUE is YAML)"
 DEVICE_HELP = "where learned stages run: auto (cuda if available), cpu, cuda, cuda:N, mps"
@@ -53,7 +53,7 @@ def yaml_setting(value: str) -> str:
     """An argparse type for KEY=VALUE options whose value is YAML: refuse malformed YAML while parsing options."""
     import yaml
 
-    from .. import yaml_input
+    from ..data import yaml_input
 
     try:
         yaml_input.load(value.partition("=")[2])  # aliases refused too
@@ -134,7 +134,7 @@ def split_conf(registry, args: argparse.Namespace, conf: dict[str, Any]) -> dict
 
 def parse_data_conf(items: list[str]) -> dict[str, Any]:
     """`["frames.test=3"]` -> {"frames": {"test": 3}}."""
-    from .. import yaml_input
+    from ..data import yaml_input
     from ..errors import DataError
 
     conf: dict[str, Any] = {}
@@ -159,7 +159,7 @@ def open_dataset(registry, args: argparse.Namespace):
 
 def chosen_combinations(registry, args: argparse.Namespace):
     """The combinations the stage options, --preset, --grid and --conf name (CLI options winning over the grid file)."""
-    from ..grid import base_combinations, expand, parse_conf_overrides
+    from ..runs.grid import base_combinations, expand, parse_conf_overrides
     from ..stages.config import overlay
 
     choices = stage_choices(args)
@@ -188,7 +188,7 @@ def grid_file(path: str):
     import yaml
 
     from ..errors import PluginError
-    from ..grid import load_grid_file
+    from ..runs.grid import load_grid_file
 
     shape = "base: {kind: name}, grid: {kind: [names]}, confs: {kind: {key: value}}"
     try:

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ..runs.context import RunContext
 from .options import (
     DEVICE_HELP,
     add_conf_option,
@@ -24,7 +25,7 @@ from .options import (
 )
 
 if TYPE_CHECKING:
-    from ..results import RunResult
+    from .results import RunResult
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -82,13 +83,13 @@ def execute(args: argparse.Namespace) -> RunResult | int:
     from ..errors import I2PBenchError
     from ..runs.invocation import Invocation
 
-    registry, combinations, dataset, frame_ids, protocols, threads = _prepare(args)
-    name = f"{dataset.name}-{dataset.split}{getattr(dataset, 'board_suffix', '')}"  # a fold's board is its own
-    store = _open_store(Path(args.runs_dir) / name)
-    invocation = Invocation(store.root, _meta(args, threads, protocols, dataset, frame_ids, combinations))
+    ctx = _prepare(args)
+    store = _open_store(Path(args.runs_dir) / ctx.board_name)
+    ctx = ctx.with_store(store)
+    invocation = Invocation(store.root, _meta(ctx))
     start = time.perf_counter()
     try:
-        records = _run_grid(registry, combinations, dataset, frame_ids, protocols, store, invocation.id, args)
+        records = _run_grid(ctx, invocation.id)
     except OSError as exc:  # the store's disk full or gone read-only: frames written so far stay
         raise _store_failed(exc, store, invocation) from None
     except I2PBenchError as exc:  # a worker lost, a cluster that does not answer: the record says so, not "running"
@@ -97,20 +98,19 @@ def execute(args: argparse.Namespace) -> RunResult | int:
     except KeyboardInterrupt as exc:  # Ctrl-C: workers stopped, finished frames kept, the board of those printed
         from .run_notes import stopped
 
-        return stopped(exc, store, invocation, protocols[0])
-    stem = Path(args.out or Path(args.runs_dir) / "leaderboards" / board_name(name, args))
+        return stopped(exc, store, invocation, ctx.protocol)
+    stem = Path(args.out or Path(args.runs_dir) / "leaderboards" / board_name(ctx.board_name, args))
     try:
-        return _publish(args, registry, records, protocols[0], invocation, threads, time.perf_counter() - start,
-                        store.root, stem)  # fmt: skip
+        return _publish(ctx, records, invocation, time.perf_counter() - start, stem)
     except KeyboardInterrupt as exc:  # while the board is built or written: every frame is stored, the record says so
         from .run_notes import stopped
 
-        return stopped(exc, store, invocation, protocols[0])
+        return stopped(exc, store, invocation, ctx.protocol)
 
 
-def _prepare(args: argparse.Namespace):
+def _prepare(args: argparse.Namespace) -> RunContext:
     """Everything checked before the run's store is made: options, combinations and their configs, the dataset and
-    its frames, the protocols; returns (registry, combinations, dataset, frame ids, protocols, threads)."""
+    its frames, the protocols."""
     from ..boards.out_stem import board_stem
     from ..errors import DataError
     from ..execution.devices import resolve_device_name
@@ -132,28 +132,30 @@ def _prepare(args: argparse.Namespace):
         raise DataError(f"dataset {dataset.name!r} split {dataset.split!r} has no frames to run")
     base = for_run(args.protocol, args.seed, dataset.name, registry)
     protocols = _protocols(registry, base, args, dataset, frame_ids)
-    return registry, combinations, dataset, frame_ids, protocols, threads
+    return RunContext(registry, tuple(combinations), dataset, tuple(frame_ids), tuple(protocols), threads, args)
 
 
-def _publish(args, registry, records, protocol, invocation, threads: int, wall_s: float, store_root: Path,
-             stem: Path) -> RunResult:  # fmt: skip
+def _publish(ctx: RunContext, records, invocation, wall_s: float, stem: Path) -> RunResult:
     """The finished run's board: recorded with the invocation, printed with its notes (the board on stdout for the
     CLI, not for a Python caller: `echo`), then written to `stem`."""
     from ..boards import leaderboard
     from ..execution import progress
-    from ..results import RunResult
+    from ..scoring.installed import active
+    from .results import RunResult
     from .run_notes import failure_reasons, latency_reused
 
-    board = leaderboard.build(records, protocol)
+    args, store_root, metrics = ctx.options, ctx.store.root, active(ctx.registry)
+    board = leaderboard.build(records, ctx.protocol, metrics, ctx.registry)
     counts = _summary(records, board, invocation.id, wall_s)
     invocation.finish(**counts)
     progress.note(f"{counts['reused']} of {len(records)} frames reused from the cache in {store_root}")
     if getattr(args, "echo", True):
-        print(leaderboard.to_markdown(board))  # first: a leaderboard that cannot be written is still seen
-    for line in [*failure_reasons(records), *latency_reused(records, invocation.id, threads, args)]:
+        # first: a leaderboard that cannot be written is still seen
+        print(leaderboard.to_markdown(board, metrics=metrics))
+    for line in [*failure_reasons(records), *latency_reused(records, invocation.id, ctx.threads, args)]:
         progress.note(line)
-    summary = _robustness(registry, board, getattr(args, "echo", True))
-    paths = _write_board(board, records, stem, store_root, summary)
+    summary = _robustness(ctx.registry, board, getattr(args, "echo", True))
+    paths = _write_board(board, records, stem, store_root, summary, metrics)
     progress.note(f"\nwritten: {', '.join(str(p) for p in paths)}; per-frame results in {store_root}")
     return RunResult(board, records, store_root, paths, invocation.id)
 
@@ -215,7 +217,7 @@ def _protocols(registry, base, args: argparse.Namespace, dataset, frame_ids: lis
     corruption the run's frames cannot take (time-offset without ego motion) is left out of `all` with a note, and
     refused before any frame runs when named."""
     from ..errors import PluginError
-    from ..grid import ALL, CLEAN, protocols
+    from ..runs.grid import ALL, CLEAN, protocols
 
     specs = [*([CLEAN, ALL] if args.robustness else []), *(args.corruption or [])]
     if not specs:
@@ -252,7 +254,7 @@ def _open_store(root: Path):
         ) from None
 
 
-def _write_board(board, records, stem: Path, store_root: Path, summary=None) -> list[Path]:
+def _write_board(board, records, stem: Path, store_root: Path, summary=None, metrics=None) -> list[Path]:
     """The leaderboard's files with the environment record of the invocations whose frames it holds (and the
     robustness summary's, `<stem>-robustness`); an unwritable folder is an error that says nothing computed is lost."""
     from ..boards import leaderboard
@@ -260,7 +262,7 @@ def _write_board(board, records, stem: Path, store_root: Path, summary=None) -> 
     from ..runs import board_env
 
     try:
-        paths = [*leaderboard.write(board, stem), board_env.write(stem, store_root, records)]
+        paths = [*leaderboard.write(board, stem, metrics), board_env.write(stem, store_root, records)]
         if summary is not None:
             paths += leaderboard.write_robustness(summary, stem.with_name(f"{stem.name}-robustness"))
         return paths
@@ -272,23 +274,23 @@ def _write_board(board, records, stem: Path, store_root: Path, summary=None) -> 
         ) from None
 
 
-def _meta(args, threads: int, protocols, dataset, frame_ids: list[str], combinations) -> dict[str, Any]:
+def _meta(ctx: RunContext) -> dict[str, Any]:
     """What this invocation depends on, recorded before any frame runs (a killed run keeps it too); `protocol` is
     the first protocol's card, `protocols` every one's when corruptions add more."""
     from ..runs.environment import environment
 
-    protocol = protocols[0]
-    more = {"protocols": [p.card() for p in protocols]} if len(protocols) > 1 else {}
+    args = ctx.options
+    more = {"protocols": [p.card() for p in ctx.protocols]} if len(ctx.protocols) > 1 else {}
     return {
         "argv": sys.argv,
-        "threads": threads,
+        "threads": ctx.threads,
         "device": args.device,
         "executor": {k: getattr(args, k) for k in ("executor", "workers", "threads_per_worker", "address")},
-        "protocol": protocol.card(),
-        "dataset": dataset.identity(),
-        "frames": frame_ids,
+        "protocol": ctx.protocol.card(),
+        "dataset": ctx.dataset.identity(),
+        "frames": list(ctx.frame_ids),
         "environment": environment(),
-        "combinations": [c.describe() for c in combinations],
+        "combinations": [c.describe() for c in ctx.combinations],
         **more,
     }
 
@@ -305,7 +307,7 @@ def _summary(records, board, invocation: str, wall_s: float) -> dict[str, Any]:
     }
 
 
-def _run_grid(registry, combinations, dataset, frame_ids, protocols, store, invocation: str, args):
+def _run_grid(ctx: RunContext, invocation: str):
     """run_grid under each protocol in turn, with one progress bar (ETA) over every frame of every combination and
     protocol, cached ones included."""
     import pandas as pd
@@ -313,15 +315,12 @@ def _run_grid(registry, combinations, dataset, frame_ids, protocols, store, invo
     from ..execution.progress import bar as progress_bar
     from ..runs import executors
 
-    total = len(frame_ids) * len(combinations) * len(protocols)
+    args = ctx.options
     executor = executors.make_executor(args.executor, args.workers, args.threads_per_worker, args.address, args.device)
-    what = f"{len(combinations)} combination(s) x {len(frame_ids)} frames"
-    what += f" x {len(protocols)} conditions" if len(protocols) > 1 else ""
-    with progress_bar(total, what, disable=args.quiet) as bar:
-        grids = [
-            _run_protocol(registry, combinations, dataset, frame_ids, p, store, invocation, args, executor, _Bar(bar))
-            for p in protocols
-        ]
+    what = f"{len(ctx.combinations)} combination(s) x {len(ctx.frame_ids)} frames"
+    what += f" x {len(ctx.protocols)} conditions" if len(ctx.protocols) > 1 else ""
+    with progress_bar(ctx.frames_in_all(), what, disable=args.quiet) as bar:
+        grids = [_run_protocol(ctx, p, invocation, executor, _Bar(bar)) for p in ctx.protocols]
     return pd.concat(grids, ignore_index=True)
 
 
@@ -340,13 +339,14 @@ class _Bar:
             self.label = label
 
 
-def _run_protocol(registry, combinations, dataset, frame_ids, protocol, store, invocation, args, executor, progress):
+def _run_protocol(ctx: RunContext, protocol, invocation: str, executor, progress):
     """One protocol's grid, serially in this process (no executor: its learned stages on --device) or on the
     executor's workers (each choosing its own device)."""
     from ..runs.executors import run_grid
 
+    args = ctx.options
     return run_grid(
-        registry, combinations, dataset, protocol, store, executor, weights=args.weights, device=args.device,
-        frame_ids=frame_ids, overwrite=args.overwrite, progress=progress, invocation=invocation,
-        chunk_size=args.chunk_size,
+        ctx.registry, list(ctx.combinations), ctx.dataset, protocol, ctx.store, executor, weights=args.weights,
+        device=args.device, frame_ids=list(ctx.frame_ids), overwrite=args.overwrite, progress=progress,
+        invocation=invocation, chunk_size=args.chunk_size,
     )  # fmt: skip

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     import pandas as pd
 
-    from ..results import ScoreResult
+    from .results import ScoreResult
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -34,9 +34,9 @@ def run(args: argparse.Namespace) -> int:
 def execute(args: argparse.Namespace, frame: pd.DataFrame | None = None) -> ScoreResult:
     """The board (the CLI's and `i2pbench.score`'s one path); `frame`: a table given in Python instead of a file."""
     from ..boards.out_stem import board_stem
-    from ..results import ScoreResult
     from ..scoring import foreign, peer_outputs, predictions
     from ..scoring.table import chosen, to_markdown
+    from .results import ScoreResult
 
     args.out = board_stem(args.out)
     if frame is not None:

@@ -187,7 +187,7 @@ def _check_val(val_set: Dataset | None) -> None:
 
 
 def _combination(registry, args: argparse.Namespace):
-    from ..grid import base_combinations, expand, parse_conf_overrides
+    from ..runs.grid import base_combinations, expand, parse_conf_overrides
 
     choices = {kind: [name] for kind, name in stage_choices(args).items()}
     bases = base_combinations(registry, args.preset, stages_named=bool(choices))[:1]
@@ -197,7 +197,7 @@ def _combination(registry, args: argparse.Namespace):
 def _init_2d(pipeline, path: str) -> dict:
     """--init-2d: the encoder2d loaded from `path`, and the record of it for the checkpoint."""
     from ..errors import I2PBenchError
-    from ..weights import load_init
+    from ..weights.checkpoints import load_init
 
     stage = pipeline.learned_modules().get("encoder2d")
     if stage is None:
@@ -206,7 +206,7 @@ def _init_2d(pipeline, path: str) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..weights import check_out
+    from ..weights.checkpoints import check_out
 
     check_out(Path(args.out), args.force)  # a refused --out or --mix is said before torch loads (seconds)
     mix_specs, val_spec = _source_specs(args)
@@ -215,9 +215,9 @@ def run(args: argparse.Namespace) -> int:
 
     from ..execution.devices import resolve_device
     from ..execution.isolation import isolated
-    from ..pipeline import Pipeline
     from ..registry.build import default_registry
     from ..runs.environment import fix_threads
+    from ..stages.pipeline import Pipeline
     from ..training.lineage import training_meta
     from ..training.loop import Trainer, steps_for_epochs
 
@@ -250,7 +250,7 @@ def run(args: argparse.Namespace) -> int:
 def _announce(trainer, train_set, mix, resumed: str) -> None:
     """What trains, on what data, at which effective batch, resumed or compiled (by rank 0 only)."""
     from ..training.lineage import data_identity
-    from ..weights import data_label
+    from ..weights.checkpoints import data_label
 
     if not trainer.dist.main:
         return

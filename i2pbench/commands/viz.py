@@ -51,12 +51,12 @@ def resolve_frame(frame_ids: list[str], frame: str) -> str:
 def run(args: argparse.Namespace) -> int:
     from ..errors import I2PBenchError, PluginError
     from ..execution.devices import resolve_device
-    from ..protocol import Protocol
     from ..registry.build import default_registry
     from ..report import overlay
     from ..runs.environment import fix_threads
     from ..runs.jobs import prepare
     from ..scoring.pose import pose_errors
+    from ..scoring.protocol import Protocol
 
     if args.out and Path(args.out).suffix.lower() != ".png":  # checked before any frame is loaded or run
         raise I2PBenchError(f"--out {args.out}: viz writes a PNG; give a path ending in .png")

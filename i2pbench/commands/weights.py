@@ -24,7 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..registry.build import default_registry
-    from ..weights import import_weights, load_checkpoint
+    from ..weights.checkpoints import import_weights, load_checkpoint
 
     path = import_weights(default_registry(), args.importer, args.source, args.out, args.force)
     checkpoint = load_checkpoint(path)

@@ -1,4 +1,5 @@
-"""Datasets: each yields `SensorFrame`s by id; the protocol turns them into registration problems."""
+"""Datasets: each yields `SensorFrame`s by id; the protocol turns them into registration problems. `yaml_input` reads
+the YAML a user hands in (split files, grid files, `--conf` values) without aliases."""
 
 from .base import Dataset
 

@@ -8,9 +8,9 @@ T_cam_lidar = P's baseline @ Tr, computed from the calibration's float32 values 
 Each frame also carries `draw_index`, its index in the list the peers' loaders build over the split's sequences
 (frame i of a sequence is 2 i, camera 3's 2 i + 1, after the earlier sequences' frames): under a peer card
 (`--protocol corri2p`, `cofii2p`) the stages get exactly the frame those loaders build for that index
-(i2pbench.protocol_peer), CoFiI2P's `SeedSequence([index])` draw included. The ring is unknown after voxelisation
-(zeros). A frame's `dataset` is "kitti", the recording, so that its other draws are those of the same frame read by
-`kitti`: under those cards the two datasets give the same board.
+(i2pbench.scoring.protocol_peer), CoFiI2P's `SeedSequence([index])` draw included. The ring is unknown after
+voxelisation (zeros). A frame's `dataset` is "kitti", the recording, so that its other draws are those of the same
+frame read by `kitti`: under those cards the two datasets give the same board.
 """
 
 from __future__ import annotations

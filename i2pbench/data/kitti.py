@@ -282,7 +282,7 @@ class KittiOdometry(Dataset):
 
     def draw_index(self, frame_id: str) -> int | None:
         """The frame's index in the peers' loaders' list over this split (2 x its position, + 1 for camera 3), for
-        the cards that follow their loaders (i2pbench.protocol_peer); None for a frame outside the split."""
+        the cards that follow their loaders (i2pbench.scoring.protocol_peer); None for a frame outside the split."""
         if self._index is None:
             camera3 = self.conf["camera"] == 3
             self._index = {frame: 2 * i + camera3 for i, frame in enumerate(self.frame_ids())}

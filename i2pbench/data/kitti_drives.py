@@ -17,9 +17,9 @@ from typing import Any, ClassVar
 
 import yaml
 
-from .. import yaml_input
 from ..errors import DataError
 from ..types import SensorFrame
+from . import yaml_input
 from .base import Dataset
 from .kitti import KittiOdometry, read_frame, sequence_stems
 

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import DataError
-from ..geometry import invert
+from ..geometry.transforms import invert
 from ..types import SensorFrame
 from .base import Dataset
 from .calibration import check_finite, check_intrinsics

@@ -5,7 +5,8 @@ A frame is the stored image, its K and the stored cloud, already in the camera f
 CoFiI2P's ext, the LiDAR -> camera matrix that moved it, is checked but not used, as its loader does not use it).
 Each frame carries `draw_index`, its index in the peer loader's list: CoFiI2P's the file's place in the sorted pc/
 folder, CorrI2P's the file's number. Under the layout's own card (`--protocol cofii2p` on cofii2p-nuscenes,
-`corri2p` on corri2p-nuscenes) the stages get the frame that loader builds for that index (i2pbench.protocol_peer).
+`corri2p` on corri2p-nuscenes) the stages get the frame that loader builds for that index
+(i2pbench.scoring.protocol_peer).
 """
 
 from __future__ import annotations

@@ -131,7 +131,7 @@ class _Writer:
         self.summary.dropped[reason] = self.summary.dropped.get(reason, 0) + 1
 
     def frame(self, position: int, lidar: dict[str, Any]) -> None:
-        from ..protocol_peer import voxel_grid
+        from ..scoring.protocol_peer import voxel_grid
 
         cloud = sweeps.accumulate(self.nusc, lidar, self.skip)
         if cloud.points.shape[1] < self.min_points:

@@ -44,4 +44,4 @@ def register_protocols(register) -> None:
 @hookimpl
 def register_corruptions(register) -> None:
     for name, cls in CORRUPTIONS.items():
-        register(f"i2pbench.corruptions_builtin:{cls}", name=name)
+        register(f"i2pbench.corruptions.builtin:{cls}", name=name)

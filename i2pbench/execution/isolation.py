@@ -27,7 +27,7 @@ from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any
 
 from ..errors import I2PBenchError, IsolationError
-from ..pipeline import Pipeline
+from ..stages.pipeline import Pipeline
 from ..stages.trace import FrameOutcome, StageRecord
 from .interrupts import ignore_held_sigint, sigint_held
 from .lifeline import exit_with_parent

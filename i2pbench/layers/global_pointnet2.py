@@ -15,9 +15,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ..components import Encoder3D
 from ..errors import StageError
-from ..learned import BatchedStage
+from ..stages.components import Encoder3D
+from ..stages.learned import BatchedStage
 from ..types import Frame, Keypoints3D
 from .frame_norm import FrameMLP
 from .pointnet2 import SetAbstraction, gather, group, interpolate, normalize_points, seeded_cloud, shared_mlp

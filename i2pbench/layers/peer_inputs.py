@@ -33,9 +33,9 @@ import cv2
 import numpy as np
 import torch
 
-from ..components import Extractor2D, Extractor3D
 from ..errors import StageError
-from ..geometry import transform_points
+from ..geometry.transforms import transform_points
+from ..stages.components import Extractor2D, Extractor3D
 from ..types import Frame, Keypoints2D, Keypoints3D
 from .pointnet2 import frame_seed
 

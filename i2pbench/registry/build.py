@@ -15,8 +15,8 @@ from typing import Any
 
 import pluggy
 
-from ..components import STAGES
 from ..errors import PluginError
+from ..stages.components import STAGES
 from .catalog import CLASS_KINDS, Preset, Registry
 from .lazy import registered_class
 from .loading import BUILTIN_DISTRIBUTION, make_plugin_manager, plugin_alone, plugin_selection, registrations, warn
@@ -125,10 +125,8 @@ def add_metric(registry: Registry, plugin: str, metric: Any) -> None:
 
 
 def add_protocol(registry: Registry, plugin: str, card: Any) -> None:
-    """A plugin's protocol card; a name another plugin (or the default card) has is refused, naming both."""
-    from ..scoring.cards import EDGEREGNET, check
+    """A plugin's protocol card; a name another card has (the default card's, i2pbench's own, included) is refused,
+    naming both."""
+    from ..scoring.cards import check
 
-    card = check(card, plugin)
-    if card.name == EDGEREGNET.name and card != EDGEREGNET:
-        raise PluginError(f"protocol {card.name!r} is i2pbench's default card; plugin {plugin!r} cannot replace it")
-    registry.protocols.add(card.name, card, plugin)
+    registry.protocols.add(card.name, check(card, plugin), plugin)

@@ -13,15 +13,16 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from ..components import STAGE_BASES, Component
 from ..errors import PluginError
+from ..scoring.cards import EDGEREGNET
+from ..stages.components import STAGE_BASES, Component
 from .lazy import LazyComponent, class_path, same_class
 from .loading import PluginInfo
 from .methods import Method, Row
 from .table import NAME_CLASH, Table
 
 if TYPE_CHECKING:  # imported to check a class: listing what was registered by path needs neither
-    from ..corruptions import Corruption
+    from ..corruptions.base import Corruption
     from ..data.base import Dataset
     from ..scoring.cards import ProtocolCard
     from ..scoring.metrics import Metric
@@ -54,9 +55,18 @@ def new_tables() -> dict[str, Table[Any]]:
         "preset": Table("preset", _never),
         "weights": Table("weights", lambda a, b: a == b),
         "method": Table("method", _never),
-        "protocol": Table("protocol", clash=NAME_CLASH),
+        "protocol": _protocols(),
         "metric": Table("metric", _never),
     }
+
+
+def _protocols() -> Table[Any]:
+    """the protocol cards' table, holding i2pbench's default card from the start (as the built-in metrics are
+    i2pbench's own): a run has it even when every plugin is blocked, and the built-in plugin registering it again
+    is no clash."""
+    table = Table("protocol", lambda a, b: a == b, NAME_CLASH)
+    table.add(EDGEREGNET.name, EDGEREGNET, "i2pbench")
+    return table
 
 
 class Registry:

@@ -8,8 +8,8 @@ import importlib
 from dataclasses import dataclass
 from typing import Any
 
-from ..components import STAGE_BASES
 from ..errors import PluginError
+from ..stages.components import STAGE_BASES
 
 
 @dataclass(frozen=True)
@@ -44,8 +44,8 @@ class LazyComponent:
 
 def check_class(cls: Any, kind: str, plugin: str) -> None:
     """`cls` subclasses the base of `kind` and has a name (a corruption: and declares what it needs)."""
-    from ..corruptions import Corruption  # the registry loads without them
-    from ..corruptions import check_class as check_corruption
+    from ..corruptions.base import Corruption  # the registry loads without them
+    from ..corruptions.base import check_class as check_corruption
     from ..data.base import Dataset
 
     base = {"dataset": Dataset, "corruption": Corruption}.get(kind) or STAGE_BASES[kind]

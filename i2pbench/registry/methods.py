@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..components import LEARNABLE_KINDS, STAGE_ORDER
 from ..errors import PluginError
+from ..stages.components import LEARNABLE_KINDS, STAGE_ORDER
 
 Confs = Mapping[str, Mapping[str, Any]]  # stage kind -> config overrides
 
@@ -85,7 +85,7 @@ class Method:
     weights: tuple[str | Path, ...] = ()  # checkpoint files, offered to `--weights auto`
     description: str = ""
     # `i2pbench weights import NAME FILE`: NAME -> "package.module:function", a function of the file's path returning
-    # i2pbench.weights.ImportedWeights (another code base's checkpoint mapped onto one of the sizes)
+    # i2pbench.weights.checkpoints.ImportedWeights (another code base's checkpoint mapped onto one of the sizes)
     importers: Mapping[str, str] = field(default_factory=dict)
     title: str = ""  # how boards name the method (their `method` column), e.g. "DeepI2P"; default: `name`
 

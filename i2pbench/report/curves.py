@@ -16,8 +16,8 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
 from ..boards.leaderboard import LATENCY_MEDIAN, stage_latency
-from ..components import STAGE_ORDER
-from ..protocol import Protocol
+from ..scoring.protocol import Protocol
+from ..stages.components import STAGE_ORDER
 from .labels import chars_in, line_count, number, tick, wrapped
 
 ROW = ["combination", "weights"]  # one curve per leaderboard row of a dataset split

@@ -11,7 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..geometry import in_image, project, transform_points
+from ..geometry.transforms import in_image, project, transform_points
 
 NEAR_M, FAR_M = 3.0, 50.0  # distance colour scale: warm at NEAR_M and closer, cool at FAR_M and beyond
 COOLEST = 28  # turbo below this is near-black violet, invisible on a dark image

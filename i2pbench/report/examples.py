@@ -14,8 +14,8 @@ import pandas as pd
 from tqdm import tqdm
 
 from ..errors import I2PBenchError
-from ..protocol import Protocol
 from ..registry.build import default_registry
+from ..scoring.protocol import Protocol
 from . import overlay
 from .curves import rows
 from .rundir import RunDir, best_and_worst, open_dataset, pose, reload_frame, resolved

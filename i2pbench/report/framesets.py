@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import pandas as pd
 
 from ..boards import leaderboard as lb
-from ..protocol import Protocol
+from ..scoring.protocol import Protocol
 from .curves import ROW
 
 

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from ..errors import I2PBenchError
-from ..geometry import project
+from ..geometry.transforms import project
 from ..scoring.pose import pose_errors
 from ..types import Frame, Keypoints2D, Keypoints3D, Matches
 from . import draw

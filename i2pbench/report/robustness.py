@@ -22,11 +22,11 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from ..boards import leaderboard as lb
-from ..corruptions import MAX_LEVELS, Corruption
+from ..corruptions.base import MAX_LEVELS, Corruption
 from ..errors import DataError, I2PBenchError
-from ..protocol import Protocol
 from ..registry.build import default_registry
 from ..runs.store import ResultsStore
+from ..scoring.protocol import Protocol
 from ..types import Frame, SensorFrame
 from . import draw, overlay
 from .curves import png, row_label

@@ -17,10 +17,11 @@ import numpy as np
 import pandas as pd
 
 from ..errors import DataError, I2PBenchError
-from ..protocol import Protocol
 from ..runs.evaluate import readable
 from ..runs.invocation import history
 from ..runs.store import ResultsStore
+from ..scoring.installed import read_back
+from ..scoring.protocol import Protocol
 from ..types import Frame
 
 RUN_META = "run.json"  # a run's metadata file, when the harness writes one beside invocations/
@@ -48,7 +49,7 @@ def load_run(root: str | Path) -> RunDir:
         raise I2PBenchError(f"{root}: no per-frame results in {root / 'frames'}")
     meta = _metadata(root)
     with readable(root, next((m for m in reversed(meta) if isinstance(m.get("protocol"), dict)), {})):
-        protocol = _latest(meta, "protocol", Protocol(), lambda card: Protocol(**card))
+        protocol = _latest(meta, "protocol", Protocol(), read_back)
     records, notes = _one_protocol(records, protocol)
     return RunDir(root, records, protocol, _latest(meta, "dataset", {}, dict), meta, notes)
 

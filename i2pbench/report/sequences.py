@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pandas as pd
 
-from ..protocol import Protocol
 from ..scoring.installed import rescored
+from ..scoring.protocol import Protocol
 from ..scoring.recall import by_sequence
 
 EXPLAIN = (

@@ -18,7 +18,7 @@ import sys
 import cv2
 
 from ..execution.devices import torch_gpu_build
-from ..provenance import git_commit, git_dirty
+from .provenance import git_commit, git_dirty
 
 PACKAGES = (
     "i2pbench",

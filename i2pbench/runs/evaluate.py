@@ -22,10 +22,11 @@ import pandas as pd
 from .. import __version__
 from ..boards import leaderboard
 from ..errors import I2PBenchError
-from ..protocol import Protocol
 from ..scoring import installed as installed_metrics
+from ..scoring.installed import read_back
 from ..scoring.metrics import Scored
 from ..scoring.pose import FAILED, pose_errors
+from ..scoring.protocol import Protocol
 from .invocation import history, record_file, written_by
 from .store import ResultsStore
 
@@ -67,10 +68,10 @@ def evaluate(run_dir: str | Path, invocation: str = LAST, **thresholds: float | 
         with readable(root, meta):
             records, card = _grid(records, meta), meta["protocol"]
             expected = len(meta["frames"]) * len(meta["combinations"])
-            Protocol(**card)
+            read_back(card)
         if records.empty:
             raise I2PBenchError(f"{root}: none of invocation {meta['id']}'s frames is in the store")
-    protocol = dataclasses.replace(Protocol(**card), **{k: v for k, v in thresholds.items() if v is not None})
+    protocol = read_back(card).with_thresholds(**thresholds)
     records = rescore(records)
     return Evaluation(leaderboard.build(records, protocol), protocol, records, expected)
 
@@ -123,7 +124,7 @@ def _grid(records: pd.DataFrame, meta: dict[str, Any]) -> pd.DataFrame:
     ties in the leaderboard's sort fall as they did in the run."""
     keys = [_combination_key(describe) for describe in meta["combinations"]]
     frames = list(meta["frames"])
-    protocol = Protocol(**meta["protocol"]).identity()
+    protocol = Protocol.from_card(meta["protocol"]).identity()
     data = meta.get("dataset", {})
     chosen = (
         records["combination_key"].isin(keys)
@@ -184,7 +185,7 @@ def _single_card(records: pd.DataFrame, runs: list[dict[str, Any]], root: Path) 
     cards = []
     for meta in runs:
         with readable(root, meta):
-            cards += [meta["protocol"]] if Protocol(**meta["protocol"]).identity() == identities[0] else []
+            cards += [meta["protocol"]] if Protocol.from_card(meta["protocol"]).identity() == identities[0] else []
     if not cards and Protocol().identity() != identities[0]:
         raise I2PBenchError(f"{root}: no invocation records protocol {identities[0]}'s card")
     return cards[0] if cards else Protocol().card()

@@ -30,9 +30,10 @@ from ..data.base import Dataset
 from ..errors import I2PBenchError
 from ..execution.interrupts import Interrupted, ignore_held_sigint, sigint_held
 from ..execution.lifeline import exit_with_parent
-from ..pipeline import Combination
-from ..protocol import Protocol
 from ..registry.catalog import Registry
+from ..scoring.installed import active
+from ..scoring.protocol import Protocol
+from ..stages.pipeline import Combination
 from .jobs import Job, frame_key, labels, prepare
 from .store import ResultsStore
 from .tasks import Deliver, Executor, Progress, Result, Task, Work
@@ -154,7 +155,7 @@ def run_grid(
     """
     jobs = prepare(registry, combinations, weights, "cpu", dataset.name)
     frame_ids = list(frame_ids if frame_ids is not None else dataset.frame_ids())
-    work = Work(jobs, dataset, protocol, invocation, overwrite=overwrite)
+    work = Work(jobs, dataset, protocol, invocation, overwrite=overwrite, metrics=active(registry))
     executor = executor if executor is not None else InProcessExecutor(device)
     return pd.DataFrame(run_work(work, frame_ids, store, executor, progress, chunk_size))
 

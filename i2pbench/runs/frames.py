@@ -22,15 +22,15 @@ from typing import Any
 
 import numpy as np
 
-from ..components import STAGE_ORDER
-from ..corruptions import CorruptionError
+from ..corruptions.base import CorruptionError
 from ..data.base import Dataset
 from ..errors import I2PBenchError
-from ..pipeline import FrameOutcome
-from ..protocol import Protocol
-from ..scoring.installed import record_values
-from ..scoring.metrics import Scored
+from ..scoring.installed import active, record_values
+from ..scoring.metrics import Metric, Scored
 from ..scoring.pose import pose_errors
+from ..scoring.protocol import Protocol
+from ..stages.components import STAGE_ORDER
+from ..stages.pipeline import FrameOutcome
 from ..types import Frame, PoseEstimate
 from .environment import threads
 from .jobs import Job, labels, upstream_key
@@ -38,6 +38,17 @@ from .store import ResultsStore
 from .upstream import StoredUpstream
 
 WHOLE, SOLVER = "pipeline", "solver"  # the two ways to compute a frame, each warmed up before its first timed frame
+
+
+@dataclass(frozen=True)
+class FrameContext:
+    """What each frame of one combination is computed under: the prepared combination, the dataset, the protocol
+    and the metrics recorded per frame (those of the run's registry)."""
+
+    job: Job
+    dataset: Dataset
+    protocol: Protocol
+    metrics: tuple[Metric, ...]
 
 
 @dataclass
@@ -49,10 +60,8 @@ class Computed:
 
 
 def compute(
-    job: Job,
-    dataset: Dataset,
+    ctx: FrameContext,
     frame_id: str,
-    protocol: Protocol,
     store: ResultsStore | None,
     warm: set[str],
     warmup: int = 1,
@@ -61,36 +70,40 @@ def compute(
     """The frame's record: re-solved from its stored upstream when the store has it and the solver can run alone,
     else from the whole pipeline. The first frame each way is preceded by `warmup` untimed runs (`warm` remembers).
     The upstream key is computed here once, for the look-up and the record alike."""
-    stored, read, key = None, 0.0, upstream_key(dataset, frame_id, job, protocol)
+    job = ctx.job
+    stored, read, key = None, 0.0, upstream_key(ctx.dataset, frame_id, job, ctx.protocol)
     if store is not None and reuse_upstream and job.pipeline.resolvable:
         start = time.perf_counter()
         stored = store.get_upstream(key, StoredUpstream.decode)
         read = time.perf_counter() - start
     if stored is None:
         if WHOLE not in warm and warmup:
-            warm_up(job, dataset, protocol, frame_id, warmup)
+            warm_up(ctx, frame_id, warmup)
         warm |= {WHOLE, SOLVER}
-        return compute_frame(job, dataset, frame_id, protocol, key)
+        return compute_frame(ctx, frame_id, key)
     if SOLVER not in warm:
         for _ in range(warmup):
             job.pipeline.resolve(stored.solver_frame(), stored.upstream)
         warm.add(SOLVER)
-    return resolve_frame(job, dataset, frame_id, protocol, stored, key, read)
+    return resolve_frame(ctx, frame_id, stored, key, read)
 
 
-def warm_up(job: Job, dataset: Dataset, protocol: Protocol, frame_id: str, times: int) -> None:
+def warm_up(ctx: FrameContext, frame_id: str, times: int) -> None:
     """Untimed runs so one-off costs (lazy imports, allocator growth, JIT) stay out of latency figures."""
     try:
-        frame = load_frame(dataset, frame_id, protocol)
+        frame = load_frame(ctx.dataset, frame_id, ctx.protocol)
     except I2PBenchError:
         return
     for _ in range(times):
-        job.pipeline.run(frame)
+        ctx.job.pipeline.run(frame)
 
 
-def run_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol) -> dict[str, Any]:
-    """The record of one frame run through the whole pipeline (`compute_frame` without the upstream)."""
-    return compute_frame(job, dataset, frame_id, protocol).record
+def run_frame(
+    job: Job, dataset: Dataset, frame_id: str, protocol: Protocol, metrics: tuple[Metric, ...] | None = None
+) -> dict[str, Any]:
+    """The record of one frame run through the whole pipeline (`compute_frame` without the upstream); `metrics`
+    default: the installed ones."""
+    return compute_frame(FrameContext(job, dataset, protocol, metrics or active()), frame_id).record
 
 
 def load_frame(dataset: Dataset, frame_id: str, protocol: Protocol) -> Frame:
@@ -99,64 +112,52 @@ def load_frame(dataset: Dataset, frame_id: str, protocol: Protocol) -> Frame:
     return protocol.apply(dataset.load(frame_id))
 
 
-def compute_frame(job: Job, dataset: Dataset, frame_id: str, protocol: Protocol, up_key: str | None = None) -> Computed:
+def compute_frame(ctx: FrameContext, frame_id: str, up_key: str | None = None) -> Computed:
     """Load, run and score one frame; a dataset error becomes a failed record naming the file, while a failing
     corruption stops the run (a failed row would blame the method for the benchmark's fault). `up_key` is the frame's
     `upstream_key`, computed by the caller once per frame; None computes it here."""
     start = time.perf_counter()
     try:
-        frame = load_frame(dataset, frame_id, protocol)
+        frame = load_frame(ctx.dataset, frame_id, ctx.protocol)
     except CorruptionError:
         raise
     except I2PBenchError as exc:
         outcome = FrameOutcome(
-            PoseEstimate.failed(str(exc)), {}, error=str(exc), failed_component=f"dataset {dataset.name!r}"
+            PoseEstimate.failed(str(exc)), {}, error=str(exc), failed_component=f"dataset {ctx.dataset.name!r}"
         )
         elapsed = time.perf_counter() - start
-        return Computed(_record(job, dataset, frame_id, protocol, outcome, None, elapsed, elapsed))
+        return Computed(_record(ctx, frame_id, outcome, None, elapsed, elapsed))
     loaded = time.perf_counter()
-    outcome = job.pipeline.run(frame)
-    record = _record(job, dataset, frame_id, protocol, outcome, frame, loaded - start, time.perf_counter() - start)
+    outcome = ctx.job.pipeline.run(frame)
+    record = _record(ctx, frame_id, outcome, frame, loaded - start, time.perf_counter() - start)
     upstream = StoredUpstream.of(frame, outcome)
     if upstream is not None:
-        record["upstream_key"] = up_key or upstream_key(dataset, frame_id, job, protocol)
+        record["upstream_key"] = up_key or upstream_key(ctx.dataset, frame_id, ctx.job, ctx.protocol)
     return Computed(record, upstream)
 
 
 def resolve_frame(
-    job: Job,
-    dataset: Dataset,
-    frame_id: str,
-    protocol: Protocol,
-    stored: StoredUpstream,
-    up_key: str,
-    read_s: float = 0.0,
+    ctx: FrameContext, frame_id: str, stored: StoredUpstream, up_key: str, read_s: float = 0.0
 ) -> Computed:
     """Run the solver alone on a frame's stored upstream and score it; the record is a whole run's, but
     `stages_run` says "solver", `t_load_s` is the upstream's read and the upstream stages' times are the stored ones
     (so `t_total_s` still estimates a whole frame's latency). `up_key` is the key `stored` was read under."""
     start = time.perf_counter()
     frame = stored.solver_frame()
-    outcome = job.pipeline.resolve(frame, stored.upstream)
+    outcome = ctx.job.pipeline.resolve(frame, stored.upstream)
     ran = ",".join(outcome.timings)
     timings = {kind: t for kind, t in stored.timings.items() if not math.isnan(t)}  # NaN: that stage did not run
     outcome = dataclasses.replace(outcome, timings={**timings, **outcome.timings})
     wall = read_s + time.perf_counter() - start
-    record = _record(job, dataset, frame_id, protocol, outcome, frame, read_s, wall)
+    record = _record(ctx, frame_id, outcome, frame, read_s, wall)
     record.update(stages_run=ran, upstream_key=up_key)
     return Computed(record)
 
 
 def _record(
-    job: Job,
-    dataset: Dataset,
-    frame_id: str,
-    protocol: Protocol,
-    outcome: FrameOutcome,
-    frame: Frame | None,
-    load: float,
-    wall: float,
+    ctx: FrameContext, frame_id: str, outcome: FrameOutcome, frame: Frame | None, load: float, wall: float
 ) -> dict[str, Any]:
+    job, dataset, protocol = ctx.job, ctx.dataset, ctx.protocol
     T_pred, T_gt = outcome.estimate.T, (frame.T_gt if frame is not None else None)
     errors = pose_errors(T_pred, T_gt) if T_gt is not None else pose_errors(None, np.eye(4))
     return {
@@ -174,7 +175,7 @@ def _record(
         "status": "ok" if T_pred is not None else "failed",
         "error": outcome.error,
         "failed_component": outcome.failed_component,
-        **record_values(Scored(frame, outcome, errors)),  # every registered per-frame metric
+        **record_values(Scored(frame, outcome, errors), ctx.metrics),  # every registered per-frame metric
         "model_size_mb": job.pipeline.model_size_mb(),
         "threads": threads(),
         "device": job.device,

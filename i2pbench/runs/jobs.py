@@ -13,13 +13,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from .. import layers
-from ..components import Component
 from ..data.base import Dataset
 from ..execution.isolation import isolated
-from ..pipeline import Combination, Pipeline, stage_classes
-from ..protocol import Protocol
 from ..registry.catalog import Registry
-from ..weights import apply_checkpoint, select_checkpoint
+from ..scoring.protocol import Protocol
+from ..stages.components import Component
+from ..stages.pipeline import Combination, Pipeline, stage_classes
+from ..weights.checkpoints import apply_checkpoint, select_checkpoint
 from . import weights_choice
 from .environment import sync_torch_threads
 from .store import versioned_key

@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import typing
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from ..data.base import Dataset
-from ..protocol import Protocol
+from ..scoring.installed import active
+from ..scoring.metrics import Metric
+from ..scoring.protocol import Protocol
 from .jobs import Job
 from .store import ResultsStore
 from .upstream import StoredUpstream
@@ -51,6 +53,8 @@ class Work:
     invocation: str = ""
     warmup: int = 1
     overwrite: bool = False  # recompute stored upstreams too
+    # the metrics recorded per frame: the run's registry's (default: the installed ones); pickled by name
+    metrics: tuple[Metric, ...] = field(default_factory=active)
 
 
 Deliver = Callable[[Sequence[Result]], None]

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..components import STAGE_ORDER
-from ..pipeline import FrameOutcome, Upstream
+from ..stages.components import STAGE_ORDER
+from ..stages.pipeline import FrameOutcome, Upstream
 from ..types import Frame, Keypoints2D, Keypoints3D, Matches
 
 FORMAT = 1  # part of the upstream key: a new layout never meets files of an old one

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import WeightsError
-from ..weights import EXTRACTOR_KINDS, load_checkpoint, mismatch, stage_signature
+from ..weights.checkpoints import EXTRACTOR_KINDS, load_checkpoint, mismatch, stage_signature
 
 _SAID: set[str] = set()  # a run prepares its grid once per protocol: each note once
 

@@ -15,7 +15,7 @@ import os
 from collections.abc import Iterator
 
 from .environment import fix_threads
-from .frames import compute
+from .frames import FrameContext, compute
 from .store import ResultsStore
 from .tasks import Result, Task, Work
 
@@ -67,8 +67,9 @@ class Worker:
         worker writes the store)."""
         w, job = self.work, self.work.jobs[task.job]
         warm = self.warm.setdefault(task.job, set())
+        ctx = FrameContext(job, w.dataset, w.protocol, w.metrics)
         for frame_id, key in zip(task.frame_ids, task.keys, strict=True):
-            computed = compute(job, w.dataset, frame_id, w.protocol, self.store, warm, w.warmup, not w.overwrite)
+            computed = compute(ctx, frame_id, self.store, warm, w.warmup, not w.overwrite)
             record = {**computed.record, "invocation": w.invocation}
             result = Result(task.job, frame_id, key, record, False, computed.upstream)
             yield result if self.store is None else store_result(self.store, result)

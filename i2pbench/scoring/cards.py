@@ -21,9 +21,9 @@ from ..errors import PluginError
 from .rules import ScoringRules
 
 if TYPE_CHECKING:  # cards are registered by `i2pbench plugins` too, which must import neither numpy nor pandas
-    from ..protocol import Protocol
+    from .protocol import Protocol
 
-DEFAULT_NAME, DEFAULT_VERSION = "edgeregnet", 1  # as i2pbench.protocol's (a test checks they agree)
+DEFAULT_NAME, DEFAULT_VERSION = "edgeregnet", 1  # as i2pbench.scoring.protocol's (a test checks they agree)
 
 TAU = 2 * math.pi
 SOURCES = {  # repository -> the commit every line number below refers to
@@ -104,16 +104,14 @@ class ProtocolCard:
         return self.nuscenes if dataset.startswith("nuscenes") or dataset in NUSCENES_LAYOUTS else self.kitti
 
     def protocol(self, seed: int = 0, dataset: str = "kitti") -> Protocol:
-        """The Protocol a run under this card uses on `dataset`: its inputs, thresholds from its rules, its name and
-        version on the card."""
-        from ..protocol import Protocol
+        """The Protocol a run under this card uses on `dataset`: its inputs, its rules, its name and version."""
+        from .protocol import Protocol
 
-        r, i = self.rules, self.inputs(dataset) or NATIVE
+        i = self.inputs(dataset) or NATIVE
         crop = i.image_crop or (0, 0)
         return Protocol(
             seed=seed, rotation_range_rad=i.rotation_range_rad, translation_range_m=i.translation_range_m,
-            acc_rre_deg=r.acc_rre_deg, acc_rte_m=r.acc_rte_m, filter_rre_deg=r.filter_rre_deg,
-            filter_rte_m=r.filter_rte_m, rre_convention=r.rre, name=self.name, version=self.version,
+            rules=self.rules, name=self.name, version=self.version,
             image_top=i.image_top, image_scale=i.image_scale, image_crop_h=crop[0], image_crop_w=crop[1],
             points=i.points or 0, voxel_m=i.voxel_m or 0.0, pose_frame=i.pose_frame,
         )  # fmt: skip
@@ -161,7 +159,7 @@ EDGEREGNET = ProtocolCard(
 
 LOADER_NOTE = (
     "v2: on KITTI (original or CorrI2P layout) each frame is built as the paper's preprocessing and loader build it "
-    "for the frame's dataset index (i2pbench.protocol_peer, checked against the loaders: docs/datasets.md); v1 "
+    "for the frame's dataset index (i2pbench.scoring.protocol_peer, checked against the loaders: docs/datasets.md); v1 "
     "voxelised in the LiDAR frame and drew from i2pbench's per-frame generator"
 )
 _PEER_KITTI = Inputs(image_scale=0.5, image_crop=(160, 512), points=40960, voxel_m=0.1, pose_frame="camera")

@@ -1,27 +1,46 @@
-"""What scores a run here: the metrics in force (i2pbench's own, `metrics.BUILTIN`, then those the installed plugins
-register) and what the store, boards and training validation compute from them; the installed protocol cards (the
-default, then those the plugins register) found by name, and records scored under the card a run was made with."""
+"""What scores a run here: the metrics in force (i2pbench's own, `metrics.BUILTIN`, then those a registry's plugins
+register) and what the store, boards and training validation compute from them; the registered protocol cards (the
+default is in every registry), the Protocol a run is made under (it holds its card's rules), a stored run's
+Protocol read back with its card's rules, and records scored under those rules."""
 
 from __future__ import annotations
 
+import copyreg
 import difflib
 from collections.abc import Iterable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
 from ..errors import I2PBenchError
-from ..protocol import Protocol
 from ..registry import build
-from .cards import DEFAULT_NAME, DEFAULT_VERSION, EDGEREGNET, ProtocolCard
+from .cards import DEFAULT_NAME, DEFAULT_VERSION, ProtocolCard
 from .metrics import BUILTIN, Metric, Scored
+from .protocol import Protocol
 from .score import frame_errors
 
+if TYPE_CHECKING:
+    from ..registry.catalog import Registry
 
-def active() -> tuple[Metric, ...]:
-    """The built-in metrics, then those the installed plugins register (in plugin order)."""
-    return BUILTIN + tuple(build.default_registry().metrics.values())
+
+def active(registry: Registry | None = None) -> tuple[Metric, ...]:
+    """The built-in metrics, then those the registry's plugins register (in plugin order); default: the installed
+    plugins' registry."""
+    return BUILTIN + tuple((registry or build.default_registry()).metrics.values())
+
+
+def named(name: str) -> Metric:
+    """The installed metric called `name`: how a metric crosses to a worker process, where the plugins the
+    environment selects are loaded again (its callables are often lambdas, which do not pickle)."""
+    metric = by_name().get(name)
+    if metric is None:
+        raise I2PBenchError(f"metric {name!r} is not installed in this process (a plugin given to the registry by "
+                            "hand, not by entry point?): run it with the in-process executor")  # fmt: skip
+    return metric
+
+
+copyreg.pickle(Metric, lambda metric: (named, (metric.name,)))
 
 
 def record_values(scored: Scored, metrics: Iterable[Metric] | None = None) -> dict[str, float]:
@@ -48,8 +67,8 @@ def by_name(metrics: Iterable[Metric] | None = None) -> dict[str, Metric]:
 
 
 def installed(registry=None) -> dict[str, ProtocolCard]:
-    """Every registered card by name, the default first (present even when every plugin is blocked)."""
-    return {EDGEREGNET.name: EDGEREGNET, **(registry or build.default_registry()).protocols}
+    """Every registered card by name, the default first (a registry holds it even when every plugin is blocked)."""
+    return dict((registry or build.default_registry()).protocols)
 
 
 def find(name: str, registry=None) -> ProtocolCard:
@@ -69,6 +88,16 @@ def of(protocol: Protocol, registry=None) -> ProtocolCard:
         raise I2PBenchError(f"the run was made under protocol {protocol.name} v{protocol.version}; the installed "
                             f"card is v{card.version}: evaluate it with the i2pbench that has that card")  # fmt: skip
     return card
+
+
+def read_back(card: dict, registry=None) -> Protocol:
+    """A stored run's Protocol from its card, holding the rules of the installed card it names (refused when that
+    card is unknown here or has another version): the card's thresholds and RRE kind are stored, the rest of its
+    rules (failures, the frames left out, the std's ddof) are the card's."""
+    protocol = Protocol.from_card(card)
+    if (protocol.name, protocol.version) == (DEFAULT_NAME, DEFAULT_VERSION):
+        return protocol
+    return Protocol.from_card(card, of(protocol, registry).rules)
 
 
 def for_run(name: str, seed: int, dataset: str, registry=None) -> Protocol:
@@ -92,5 +121,5 @@ def rescored(records: pd.DataFrame, protocol: Protocol) -> pd.DataFrame:
     the leaderboard's metrics (thresholds from the same card) give its Acc., means and stds."""
     if (protocol.name, protocol.version) == (DEFAULT_NAME, DEFAULT_VERSION) or records.empty:
         return records
-    errors = frame_errors(records, of(protocol).rules)
+    errors = frame_errors(records, protocol.rules)
     return records.assign(rte_m=errors["rte"], rre_deg=errors["rre"])[errors["scored"]]

@@ -32,8 +32,8 @@ import numpy as np
 import pandas as pd
 
 from ..errors import PluginError
-from ..protocol import Protocol
 from .pose import PoseErrors, kept, success
+from .protocol import Protocol
 
 if TYPE_CHECKING:
     from ..stages.trace import FrameOutcome
@@ -152,7 +152,7 @@ def _geodesic(records: pd.DataFrame, protocol: Protocol) -> np.ndarray | None:
 def true_matches(frame: Frame | None, outcome: FrameOutcome) -> float:
     """How many of the matcher's pairs are true under T_gt (within eps_c, or the matcher's own `Matches.radius_px`);
     NaN when the matcher did not run."""
-    from ..correspondence import true_match_mask  # scipy: only when a frame is scored
+    from ..geometry.correspondence import true_match_mask  # scipy: only when a frame is scored
 
     if frame is None or frame.T_gt is None or outcome.matched_uv is None or outcome.matched_xyz is None:
         return float("nan")

@@ -14,8 +14,8 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from ..geometry import invert
-from ..protocol import Protocol
+from ..geometry.transforms import invert
+from .protocol import Protocol
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..protocol import Protocol
+from .protocol import Protocol
 
 RRE_STEPS_DEG = (1.0, 2.0, 5.0, 10.0, 20.0)
 RTE_STEPS_M = (0.25, 0.5, 1.0, 2.0, 5.0)

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from ..geometry import invert
+from ..geometry.transforms import invert
 from .pose import xzy_euler_deg
 from .rules import ScoringRules
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import pandas as pd
 
 from ..errors import I2PBenchError
-from ..protocol import Protocol
 from . import cards, installed
+from .protocol import Protocol
 from .score import score
 
 NEEDS_RERUN = "needs a rerun"

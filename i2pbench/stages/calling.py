@@ -12,9 +12,9 @@ from __future__ import annotations
 import sys
 import time
 
-from ..components import FEATURES2D, FEATURES3D, GROUND_TRUTH, STAGES, Component
 from ..types import Features, Frame
 from . import contracts
+from .components import FEATURES2D, FEATURES3D, GROUND_TRUTH, STAGES, Component
 from .inputs import StageInputs
 from .trace import StageRecord
 

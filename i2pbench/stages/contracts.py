@@ -9,9 +9,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..components import FRUSTUM_SCORES, STAGES
 from ..errors import StageError
 from ..types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
+from .components import FRUSTUM_SCORES, STAGES
 
 if TYPE_CHECKING:
     import torch

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from ..components import STAGES
 from ..types import Features, Keypoints2D, Keypoints3D, Matches, PoseEstimate
+from .components import STAGES
 from .inputs import StageInputs
 
 

@@ -13,7 +13,7 @@ import dataclasses
 
 import numpy as np
 
-from ..protocol import Protocol
+from ..scoring.protocol import Protocol
 from ..types import Frame, SensorFrame
 
 SENSOR_HEIGHT = 1.7  # metres above the road

@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..components import Component
-from ..geometry import in_image, project
+from ..geometry.transforms import in_image, project
 from ..stages.calling import StageInputs
+from ..stages.components import Component
 from ..types import Features, Frame, Keypoints2D, Keypoints3D, Matches
 
 DEFAULT_DIM = 32  # descriptor width when the component's conf has no `descriptor_dim`

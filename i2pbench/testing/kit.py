@@ -26,12 +26,12 @@ from typing import Any
 
 import torch
 
-from ..components import EXTRA_VALUES, STAGE_BASES, STAGE_ORDER, Component
 from ..errors import StageError
-from ..learned import LearnedComponent
 from ..stages.calling import StageInputs, call_stage
+from ..stages.components import EXTRA_VALUES, STAGE_BASES, STAGE_ORDER, Component
 from ..stages.config import ConfigError
 from ..stages.contracts import ContractError
+from ..stages.learned import LearnedComponent
 from ..stages.trace import StageRecord
 from ..types import Frame
 from .cases import Case, bad_cases, empty_cases

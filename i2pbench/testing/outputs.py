@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..components import FEATURES2D, FEATURES3D, Component
 from ..errors import StageError
+from ..stages.components import FEATURES2D, FEATURES3D, Component
 from ..types import Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
 from .inputs import StageInputs
 

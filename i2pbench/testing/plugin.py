@@ -6,9 +6,9 @@ from __future__ import annotations
 import functools
 from typing import Any
 
-from ..components import STAGES, Component
 from ..registry.lazy import LazyComponent
 from ..registry.loading import plugin_alone
+from ..stages.components import STAGES, Component
 
 
 def registered_components(plugin: object) -> list[type[Component]]:

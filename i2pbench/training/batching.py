@@ -1,6 +1,6 @@
 """Batched training: how the learned stages of a combination take several frames at once.
 
-A stage that subclasses `i2pbench.learned.BatchedStage` (its contract: `prepare` one frame, `forward` a padded
+A stage that subclasses `i2pbench.stages.learned.BatchedStage` (its contract: `prepare` one frame, `forward` a padded
 batch, `batch_loss` for a trainable matcher) is prepared per frame here and run on the collated batch. A stage
 without it still trains: it runs frame by frame inside the batch (slower, same result), each call through
 `i2pbench.stages.calling.call_stage` as in a run (declared view, contract check), with autograd on.
@@ -14,9 +14,9 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from ..components import LEARNABLE_KINDS, Component
-from ..learned import BatchedStage
 from ..stages.calling import StageInputs, call_stage
+from ..stages.components import LEARNABLE_KINDS, Component
+from ..stages.learned import BatchedStage
 from ..types import Features, Frame, Keypoints2D, Keypoints3D
 
 LEARNED_KINDS = LEARNABLE_KINDS  # the stages a batch runs through, in data-flow order

@@ -13,8 +13,8 @@ from typing import Any
 import torch
 
 from ..errors import WeightsError
-from ..pipeline import Pipeline
-from ..weights import file_digest, load_checkpoint, mismatch, save_checkpoint
+from ..stages.pipeline import Pipeline
+from ..weights.checkpoints import file_digest, load_checkpoint, mismatch, save_checkpoint
 
 
 def resume_path(out: Path) -> Path:

@@ -23,12 +23,12 @@ import torch
 
 from ..data.base import Dataset
 from ..errors import I2PBenchError
-from ..pipeline import Pipeline
-from ..protocol import Protocol
 from ..scoring import installed as installed_metrics
 from ..scoring.pose import kept
+from ..scoring.protocol import Protocol
+from ..stages.pipeline import Pipeline
 from ..types import Frame
-from ..weights import save_checkpoint
+from ..weights.checkpoints import save_checkpoint
 from . import checkpoints, lineage, trainable
 from .batching import to_device
 from .config import TrainConfig

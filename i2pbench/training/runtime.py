@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ..learned import LearnedComponent
+from ..stages.learned import LearnedComponent
 from .config import TrainConfig
 
 

@@ -25,10 +25,10 @@ import numpy as np
 import torch
 
 from .. import layers
-from ..components import Component
 from ..data.base import Dataset
-from ..pipeline import extract
-from ..protocol import Protocol
+from ..scoring.protocol import Protocol
+from ..stages.components import Component
+from ..stages.pipeline import extract
 from ..types import Frame, Keypoints2D, Keypoints3D
 from .augment import augmentations
 from .batching import LEARNED_KINDS, collate, length_mask, prepare_stage

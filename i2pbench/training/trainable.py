@@ -7,10 +7,10 @@ from typing import Any
 
 import torch
 
-from ..components import TrainableMatcher
 from ..errors import I2PBenchError, PluginError
-from ..learned import BatchedStage
-from ..pipeline import Pipeline
+from ..stages.components import TrainableMatcher
+from ..stages.learned import BatchedStage
+from ..stages.pipeline import Pipeline
 from .batching import BatchForward
 
 

@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 from conftest import SAMPLE_DATA, sample
 
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
+from i2pbench.scoring.protocol import Protocol
 from i2pbench.types import Features
 
 ROOT = Path(__file__).resolve().parents[2]

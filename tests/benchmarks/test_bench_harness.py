@@ -16,13 +16,13 @@ import pandas as pd
 import pytest
 from conftest import SAMPLE_DATA, sample
 
-from i2pbench.pipeline import Combination
-from i2pbench.protocol import Protocol
 from i2pbench.registry.build import default_registry
 from i2pbench.runs.executors import run_job
 from i2pbench.runs.frames import run_frame
 from i2pbench.runs.jobs import prepare
 from i2pbench.runs.store import ResultsStore
+from i2pbench.scoring.protocol import Protocol
+from i2pbench.stages.pipeline import Combination
 
 KITTI = SAMPLE_DATA / "kitti_odometry"
 REFERENCE = {"extractor2d": "lsd", "extractor3d": "depth+reflectance", "matcher": "oracle", "solver": "epnp-ransac"}

@@ -3,7 +3,8 @@
 Pixel convention: pixel centres at integer coordinates (OpenCV's, which K follows), so a W x H image covers
 u in [-0.5, W - 0.5) and v in [-0.5, H - 0.5), the union of its pixel squares. A grid cell of `cell` pixels is the
 same kind of half-open square (the last row or column may be partial), so with no margin a point is in the frustum
-exactly when it has a cell. (`i2pbench.geometry.in_image` takes [0, W) instead: the two differ by half a pixel.)
+exactly when it has a cell. (`i2pbench.geometry.transforms.in_image` takes [0, W) instead: the two differ by half a
+pixel.)
 """
 
 from __future__ import annotations

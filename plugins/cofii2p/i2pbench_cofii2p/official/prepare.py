@@ -4,7 +4,7 @@ network's image, its 20,480 points with intensity and normals, and the KPConv py
 Where a frame comes from decides what is left to do. A dataset's frame under the default card is the whole scan and
 the full-size image: the scan is voxelised at 0.1 m and 20,480 voxels drawn as the loader's `downsample_np` draws them
 (every voxel repeated when there are fewer), the image halved and centre-cropped to 160 x 512. A frame the `cofii2p`
-card built (i2pbench.protocol_peer; `Frame.inputs` names it) already is the loader's: its 20,480 points and the
+card built (i2pbench.scoring.protocol_peer; `Frame.inputs` names it) already is the loader's: its 20,480 points and the
 160 x 512 crop are taken as they are (`is_loader_cloud`, `loader_crop`; a smaller `max_keypoints` takes a seeded
 subset of the points); another card's frame is refused by name.
 
@@ -44,7 +44,7 @@ CELL_PX = 2  # the fine map's stride in the crop (the network's 1/2-scale image 
 # by no loader line), x0.5, centre crop to options.py img_W x img_H
 CROP: dict[str, Any] = {"top_rows": 0, "scale": 0.5, "crop": (512, 160)}
 CAMERA_UP = (0.0, -1.0, 0.0)  # LiDAR +z in camera axes
-LOADER_CARDS = ("cofii2p",)  # the cards whose frames are the authors' loader's (i2pbench.protocol_peer)
+LOADER_CARDS = ("cofii2p",)  # the cards whose frames are the authors' loader's (i2pbench.scoring.protocol_peer)
 MIN_POINTS = NEIGHBOURS * 2 ** (STAGES - 1)  # the fewest whose coarsest level still has 128 neighbours to find
 
 

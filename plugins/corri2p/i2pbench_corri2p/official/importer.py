@@ -4,7 +4,8 @@
 Every key goes through checkpoint.py's mapping onto the one learned stage (the matcher, whose network sits under
 `net.`); the ResNet's ImageNet `fc` is dropped. A key the mapping does not know, a missing key or a shape that does
 not fit is refused by name. The authors released no weights (rsy6318/CorrI2P issues #7, #13): a file is whatever
-the user trained with their code, recorded as user-supplied with the file's sha256 (i2pbench.weights.import_weights).
+the user trained with their code, recorded as user-supplied with the file's sha256
+(i2pbench.weights.checkpoints.import_weights).
 """
 
 from __future__ import annotations

@@ -41,7 +41,7 @@ def load_official(path: Path) -> tuple[VP2PMatchNet, dict[str, str]]:
 
 
 def import_official(path: Path) -> ImportedWeights:
-    """the authors' checkpoint as the official size's weights (i2pbench.weights.import_weights records its sha256)."""
+    """the authors' checkpoint as the official size's weights (`import_weights` records its sha256)."""
     state = checked_state(path, VP2PMatchNet())
     return ImportedWeights(SIZE, {STAGE: {PREFIX + k: v for k, v in state.items()}}, {"release": RELEASE},
                            {"format": FORMAT})  # fmt: skip

@@ -17,7 +17,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any, NoReturn
 
-from .errors import I2PBenchError
+from ..errors import I2PBenchError
 from .results import CompareResult, EvaluateResult, RunResult, ScoreResult
 
 
@@ -33,7 +33,7 @@ class _Parser(argparse.ArgumentParser):
 def run(**options: Any) -> RunResult:
     """`i2pbench run` with `options`: runs the grid (frames already stored are reused) and returns its board and
     records; the board is not printed (progress still shows unless quiet=True)."""
-    from .execution.timeout import check_env
+    from ..execution.timeout import check_env
 
     args = namespace("run", {}, options)
     check_env()
@@ -79,7 +79,7 @@ def namespace(command: str, positional: Mapping[str, Any], options: Mapping[str,
 @contextlib.contextmanager
 def _quiet(quiet: bool) -> Iterator[None]:
     """quiet=True silences progress for this call only (the CLI's --quiet sets it for the whole process)."""
-    from .execution.progress import ENV_VAR
+    from ..execution.progress import ENV_VAR
 
     before = os.environ.get(ENV_VAR)
     if quiet:

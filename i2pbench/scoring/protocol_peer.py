@@ -24,9 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import invert
+from ..geometry.transforms import invert
+from ..types import Frame, SensorFrame
 from .protocol_inputs import image_geometry, resample_image, transform_K
-from .types import Frame, SensorFrame
 
 # CoFiI2P's KittiCalibHelper builds its matrices in float32 (data/kitti.py:39,55), so its camera-frame cloud, voxel grid
 # and moved cloud are float32; CorrI2P's are float64 (kitti_pc_img_dataloader.py:40,56). A point on a voxel's face can
@@ -159,7 +159,7 @@ def peer_frame(protocol, sensor: SensorFrame) -> Frame:
         return nuscenes_layout_frame(protocol, sensor, NUSCENES_LOADERS[sensor.dataset])
     seen, M = protocol.corrupt(sensor), protocol.motion(sensor)
     if not sensor.preprocessed:  # a raw scan: the preprocessing that made the layout's cloud, its rounded calibration
-        from .data.corri2p_export import grid_points
+        from ..data.corri2p_export import grid_points
 
         sensor = dataclasses.replace(sensor, K=as_stored(sensor.K), T_cam_lidar=as_stored(sensor.T_cam_lidar))
         seen = dataclasses.replace(seen, points=grid_points(seen.points), K=as_stored(seen.K))

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from .errors import WeightsError, os_problem
-from .pipeline import Pipeline, pretrained_sources
-from .provenance import git_commit
+from ..errors import WeightsError, os_problem
+from ..runs.provenance import git_commit
+from ..stages.pipeline import Pipeline, pretrained_sources
 
 if TYPE_CHECKING:  # checkpoints are read and written where a learned stage runs, not by every run
     import torch
@@ -177,7 +177,7 @@ def import_weights(registry: Any, importer: str, source: str | Path, out: str | 
     checkpoint without `force`)."""
     import importlib
 
-    from .grid import expand
+    from ..runs.grid import expand
 
     owners = {name: m for m in registry.methods.values() for name in m.importers}
     if importer not in owners:
@@ -211,8 +211,8 @@ def package_folders() -> list[Path]:
     weights, which nothing writes into."""
     import importlib.util
 
-    from .registry.entry_points import installed
-    from .registry.loading import ENTRY_POINT_GROUP
+    from ..registry.entry_points import installed
+    from ..registry.loading import ENTRY_POINT_GROUP
 
     folders = [Path(__file__).resolve().parent]
     for ep in installed(ENTRY_POINT_GROUP):

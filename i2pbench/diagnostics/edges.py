@@ -18,9 +18,9 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from .components import Extractor2D, Extractor3D
-from .correspondence import ground_truth_matches
-from .types import Frame, Keypoints2D, Keypoints3D
+from ..geometry.correspondence import ground_truth_matches
+from ..stages.components import Extractor2D, Extractor3D
+from ..types import Frame, Keypoints2D, Keypoints3D
 
 PAPER_TARGET_RATIO = 0.10  # "the ratio of actual matching points to the total can exceed 10%"
 

@@ -16,8 +16,8 @@ import dataclasses
 
 import numpy as np
 
-from .errors import DataError
-from .types import SensorFrame
+from ..errors import DataError
+from ..types import SensorFrame
 
 
 def transform_K(K: np.ndarray, top: int, scale: float, offset: tuple[int, int]) -> np.ndarray:

@@ -10,13 +10,13 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
-from .stages.config import merge_conf
+from .config import merge_conf
 
 if TYPE_CHECKING:  # torch is imported where a learned stage is built, not by every command that names stages
     import torch
 
-    from .stages.inputs import StageInputs
-    from .types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
+    from ..types import Features, Frame, Keypoints2D, Keypoints3D, Matches, PoseEstimate
+    from .inputs import StageInputs
 
 # The values that can flow between stages; a frame always provides "image" and "points".
 IMAGE, POINTS, GROUND_TRUTH = "image", "points", "ground_truth"

@@ -17,12 +17,12 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from .boards import leaderboard
-from .components import Extractor2D, Extractor3D
-from .diagnostics import pair_row
-from .geometry import in_image, project
-from .registry.catalog import Registry
-from .types import Frame
+from ..boards import leaderboard
+from ..geometry.transforms import in_image, project
+from ..registry.catalog import Registry
+from ..stages.components import Extractor2D, Extractor3D
+from ..types import Frame
+from .edges import pair_row
 
 EDGE_EXTRACTORS = {  # counted uncapped: the cap (3000 by default) would flatten every gap in counts
     "lsd": "extractor2d",

@@ -22,6 +22,13 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from ..errors import IsolationError, PluginError, StageError
+from ..execution import interrupts
+from ..execution.timeout import StageTimeout, TimeLimiter, timeout_from_env
+from ..registry.catalog import Registry
+from ..types import Frame, Keypoints2D, Keypoints3D
+from . import contracts
+from .calling import StageInputs, call_stage
 from .components import (
     EXTRA_VALUES,
     FRUSTUM_SCORES,
@@ -36,14 +43,7 @@ from .components import (
     STAGES,
     Component,
 )
-from .errors import IsolationError, PluginError, StageError
-from .execution import interrupts
-from .execution.timeout import StageTimeout, TimeLimiter, timeout_from_env
-from .registry.catalog import Registry
-from .stages import contracts
-from .stages.calling import StageInputs, call_stage
-from .stages.trace import Failure, FrameOutcome, StageRecord, Upstream
-from .types import Frame, Keypoints2D, Keypoints3D
+from .trace import Failure, FrameOutcome, StageRecord, Upstream
 
 if TYPE_CHECKING:  # a pipeline of classic stages runs without torch; learned stages bring it
     import torch
@@ -149,7 +149,8 @@ class Pipeline:
         return cls(combination, stages, timeout_s)
 
     def learned_modules(self) -> dict[str, LearnedComponent]:
-        learned = sys.modules.get("i2pbench.learned")  # a learned stage's class subclasses it, so it is loaded then
+        # a learned stage's class subclasses it, so it is loaded then
+        learned = sys.modules.get("i2pbench.stages.learned")
         if learned is None:
             return {}
         return {k: c for k, c in self.stages.items() if isinstance(c, learned.LearnedComponent)}

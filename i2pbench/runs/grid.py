@@ -11,17 +11,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from . import yaml_input
-from .components import STAGE_BASES, STAGE_ORDER
-from .corruptions import Corruption, NotApplicable, unavailable
-from .errors import PluginError
-from .pipeline import NONE, REQUIRED_STAGES, Combination
-from .protocol import Protocol
-from .registry.catalog import Registry
-from .stages.config import overlay
+from ..corruptions.base import Corruption, NotApplicable, unavailable
+from ..data import yaml_input
+from ..errors import PluginError
+from ..registry.catalog import Registry
+from ..scoring.protocol import Protocol
+from ..stages.components import STAGE_BASES, STAGE_ORDER
+from ..stages.config import overlay
+from ..stages.pipeline import NONE, REQUIRED_STAGES, Combination
 
 if TYPE_CHECKING:
-    from .data.base import Dataset
+    from ..data.base import Dataset
 
 GRID_KEYS = ("base", "grid", "confs")
 CLEAN, ALL = "clean", "all"  # --corruption words: the uncorrupted protocol, every registered corruption

@@ -10,7 +10,7 @@ work with the wrong one, as they would with a bad calibration.
 A corruption that `moves_cloud` (a tilted mount) returns a rigid motion M of the scan from `motion` instead of
 changing the frame: the protocol composes it into its own random transform, T = T_rand @ M, so the ground truth stays
 the truth, T_gt = T_cam_lidar @ inv(T). A corruption that `needs` an optional field of the frame (the ego motion) does
-not apply to a frame without it: `i2pbench.grid.protocols` leaves it out of `all` for such data and refuses it by
+not apply to a frame without it: `i2pbench.runs.grid.protocols` leaves it out of `all` for such data and refuses it by
 name, before any frame runs, and a frame that still meets it stops the run (`NotApplicable`), so it never becomes a
 0 % row.
 
@@ -25,13 +25,13 @@ import dataclasses
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
-from .errors import I2PBenchError, PluginError
+from ..errors import I2PBenchError, PluginError
 
 if TYPE_CHECKING:  # numpy and the frame are imported where frames are checked: listing plugins needs neither
     import numpy as np
 
-    from .data.base import Dataset
-    from .types import SensorFrame
+    from ..data.base import Dataset
+    from ..types import SensorFrame
 
 KINDS = ("image", "lidar", "geometry")
 CHANGES = {"image": {"image"}, "lidar": {"points", "ring"}, "geometry": {"K"}}  # what each kind may change
@@ -165,7 +165,7 @@ def check_corrupted(before: SensorFrame, after: object, corruption: Corruption) 
     """The corrupted frame is the same frame, changed only where its kind allows, with valid arrays."""
     import numpy as np
 
-    from .types import SensorFrame
+    from ..types import SensorFrame
 
     where = f"corruption {corruption.name!r} on {before.dataset} frame {before.frame_id}"
     if not isinstance(after, SensorFrame):
@@ -229,7 +229,7 @@ def unavailable(corruption: Corruption, dataset: Dataset, frame_ids: Sequence[st
     them (once, before the run); a frame that does not load is left to the run, which records it failed."""
     if not corruption.needs:
         return ""
-    from .errors import DataError
+    from ..errors import DataError
 
     lacking: list[tuple[str, str]] = []
     for frame_id in frame_ids:

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .geometry import in_image, project
-from .types import Frame, Keypoints2D, Keypoints3D
+from ..types import Frame, Keypoints2D, Keypoints3D
+from .transforms import in_image, project
 
 
 @dataclass(frozen=True)

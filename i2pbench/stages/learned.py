@@ -1,6 +1,6 @@
 """The base of stages with parameters, and the contract of those that run on padded batches of frames.
 
-Both subclass torch.nn.Module, so they are kept out of i2pbench.components: importing the stage bases (to list
+Both subclass torch.nn.Module, so they are kept out of i2pbench.stages.components: importing the stage bases (to list
 plugins, or to run the classic stages) must not import torch.
 """
 
@@ -11,9 +11,9 @@ from typing import Any, ClassVar
 
 import torch
 
+from ..errors import StageError
+from ..types import Features, Frame, Keypoints2D, Keypoints3D
 from .components import Component
-from .errors import StageError
-from .types import Features, Frame, Keypoints2D, Keypoints3D
 
 Device = torch.device | str  # where a stage's `prepare` puts its tensors
 

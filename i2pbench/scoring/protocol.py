@@ -31,16 +31,21 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import DataError, I2PBenchError
-from .geometry import invert, make_transform, rot_z, transform_points
-from .types import Frame, SensorFrame
+from ..errors import DataError, I2PBenchError
+from ..geometry.transforms import invert, make_transform, rot_z, transform_points
+from ..types import Frame, SensorFrame
+from .rules import ScoringRules
 
 if TYPE_CHECKING:
-    from .corruptions import Corruption
+    from ..corruptions.base import Corruption
 
+DEFAULT_NAME, DEFAULT_VERSION = "edgeregnet", 1  # the default card's (scoring.cards imports neither numpy nor this)
+DEFAULT_RULES = ScoringRules()  # the default card's rules (a test checks they are cards.EDGEREGNET's)
 CORRUPTION_FIELDS = ("corruption", "severity")
 CARD_FIELDS = ("name", "version")  # which protocol card (i2pbench.scoring.cards); left out for the default
-DEFAULT_NAME, DEFAULT_VERSION = "edgeregnet", 1
+# the scoring rules a card states, by their names on the card (its identity reads them from the rules it holds)
+RULE_FIELDS = {"acc_rre_deg": "acc_rre_deg", "acc_rte_m": "acc_rte_m", "filter_rre_deg": "filter_rre_deg",
+               "filter_rte_m": "filter_rte_m", "rre_convention": "rre"}  # fmt: skip
 # what a card may give its stages other than the dataset's frame (protocol_inputs); each left off the card at its
 # default, so the default card keeps its identity
 INPUT_DEFAULTS = {"image_top": 0, "image_scale": 1.0, "image_crop_h": 0, "image_crop_w": 0, "points": 0,
@@ -54,11 +59,7 @@ class Protocol:
     seed: int = 0
     rotation_range_rad: float = 2 * np.pi  # yaw ~ U[-r, r]
     translation_range_m: float = 10.0  # tx, ty ~ U[-t, t]; tz = 0
-    acc_rre_deg: float = 5.0  # success: RRE < this and RTE < acc_rte_m
-    acc_rte_m: float = 2.0
-    filter_rre_deg: float = 10.0  # mean +- std use frames with RRE < this and RTE < filter_rte_m
-    filter_rte_m: float = 5.0
-    rre_convention: str = "xzy-sum"  # sum of |extrinsic 'xzy' Euler angles| of inv(T_pred) @ T_gt, as the peers
+    rules: ScoringRules = DEFAULT_RULES  # how its results are scored: its card's rules (thresholds, RRE kind)
     corruption: str = ""  # a registered corruption's name; "" is the clean protocol
     severity: int = 0  # the corruption's severity, 1..its number of levels
     name: str = DEFAULT_NAME  # the protocol card this protocol follows (`run --protocol NAME`)
@@ -72,11 +73,41 @@ class Protocol:
     pose_frame: str = "lidar"  # T_rand's frame: lidar (yaw about z, t on x, y) or camera (about y, t on x, z)
     corrupter: Corruption | None = field(default=None, compare=False, repr=False)  # the component, when resolved
 
+    @classmethod
+    def from_card(cls, card: dict, rules: ScoringRules = DEFAULT_RULES) -> Protocol:
+        """The protocol a stored card describes, its thresholds and RRE kind set on `rules` (the rules of the card
+        it names: `scoring.installed.read_back`)."""
+        fields = dict(card)
+        given = {attr: fields.pop(key) for key, attr in RULE_FIELDS.items() if key in fields}
+        return cls(**fields, rules=dataclasses.replace(rules, **given))
+
+    def with_thresholds(self, **thresholds: float | None) -> Protocol:
+        """This protocol with some thresholds of its rules replaced (`evaluate --acc-rre ...`; None keeps one)."""
+        given = {k: v for k, v in thresholds.items() if v is not None}
+        return dataclasses.replace(self, rules=dataclasses.replace(self.rules, **given))
+
+    @property
+    def acc_rre_deg(self) -> float:  # success: RRE < this and RTE < acc_rte_m
+        return self.rules.acc_rre_deg
+
+    @property
+    def acc_rte_m(self) -> float:
+        return self.rules.acc_rte_m
+
+    @property
+    def filter_rre_deg(self) -> float:  # mean +- std use frames with RRE < this and RTE < filter_rte_m
+        return self.rules.filter_rre_deg
+
+    @property
+    def filter_rte_m(self) -> float:
+        return self.rules.filter_rte_m
+
     def card(self) -> dict:
-        """The fields (the component itself is not one); a clean card leaves the corruption fields out and the
-        default card (edgeregnet v1) its name and version, so both keep the identity they had before those fields
-        existed."""
-        card = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "corrupter"}
+        """The fields (the component itself is not one, the rules are by the names RULE_FIELDS gives); a clean card
+        leaves the corruption fields out and the default card (edgeregnet v1) its name and version, so both keep
+        the identity they had before those fields existed."""
+        card = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in ("corrupter", "rules")}
+        card |= {key: getattr(self.rules, attr) for key, attr in RULE_FIELDS.items()}
         left_out = () if self.corruption else CORRUPTION_FIELDS
         left_out += CARD_FIELDS if (self.name, self.version) == (DEFAULT_NAME, DEFAULT_VERSION) else ()
         left_out += tuple(k for k, v in INPUT_DEFAULTS.items() if card[k] == v)

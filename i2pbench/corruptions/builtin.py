@@ -15,9 +15,9 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .corruptions import Corruption, with_points
-from .geometry import invert, make_transform, transform_points
-from .types import SensorFrame
+from ..geometry.transforms import invert, make_transform, transform_points
+from ..types import SensorFrame
+from .base import Corruption, with_points
 
 
 def _image(sensor: SensorFrame, image: np.ndarray) -> SensorFrame:

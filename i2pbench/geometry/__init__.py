@@ -1,0 +1,2 @@
+"""Geometry: rigid transforms and pinhole projection (`transforms`), and ground-truth 2D-3D
+correspondences (`correspondence`)."""

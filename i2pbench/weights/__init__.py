@@ -1,0 +1,1 @@
+"""Weights: checkpoints with identity, loaded, checked, applied and imported from other code bases (`checkpoints`)."""
