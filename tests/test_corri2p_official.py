@@ -70,27 +70,25 @@ def test_import_refuses_a_key_that_does_not_fit_by_name(authors_state, tmp_path)
 
 
 def test_grid_pixels_are_the_authors_cells_under_the_frames_K():
-    # a 1242 x 375 KITTI image: rows below the top 50 halved to 621 x 162 (Python's round(162.5) = 162, as the
-    # loader's), crop offsets dx = (621 - 512) // 2 = 54, dy = (162 - 160) // 2 = 1; cell (x, y) at u = 8x + 108,
-    # v = 8y + 52
+    # a 1242 x 375 KITTI image, whole (the loader cuts no rows), halved to 621 x 188 (Python's round(187.5) = 188, as
+    # the loader's), crop offsets dx = (621 - 512) // 2 = 54, dy = (188 - 160) // 2 = 14; cell (x, y) at
+    # u = 8x + 108, v = 8y + 28
     uv = grid_pixels(1242, 375)
     assert uv.shape == (40 * 128, 2)
-    np.testing.assert_array_equal(uv[[0, 1, 128, -1]], [[108, 52], [116, 52], [108, 60], [1124, 364]])
+    np.testing.assert_array_equal(uv[[0, 1, 128, -1]], [[108, 28], [116, 28], [108, 36], [1124, 340]])
     # the authors' PnP reads cell (x, y) with K4 = K of the crop / 4; the same 3D point under the full K lands on
     # our pixel of that cell, so EPnP at 8 px here is theirs at 1 px
     K = np.array([[718.856, 0, 607.1928], [0, 718.856, 185.2157], [0, 0, 1]])
-    crop = K.copy()
-    crop[1, 2] -= 50
-    crop = 0.5 * crop
+    crop = 0.5 * K
     crop[2, 2] = 1
     crop[0, 2] -= 54
-    crop[1, 2] -= 1
+    crop[1, 2] -= 14
     K4 = 0.25 * crop
     K4[2, 2] = 1
     points = np.random.default_rng(0).uniform([-10, -2, 5], [10, 2, 40], (50, 3))
     x4 = (points @ K4.T)[:, :2] / points[:, 2:]
     full = (points @ K.T)[:, :2] / points[:, 2:]
-    np.testing.assert_allclose(full, 8 * x4 + [108, 52], atol=1e-9)
+    np.testing.assert_allclose(full, 8 * x4 + [108, 28], atol=1e-9)
 
 
 def test_the_matcher_pairs_each_confident_point_with_its_nearest_confident_pixel(monkeypatch):
@@ -123,7 +121,7 @@ def test_a_pixel_reads_the_cell_it_falls_in_and_none_outside_the_crop():
     np.testing.assert_array_equal(pixel_cells(uv, 1242, 375), np.arange(len(uv)))  # the grid: every cell once
     inside = uv[[5, 300]] + [7.9, 7.9]  # anywhere in a cell's 8 x 8 full-size block
     np.testing.assert_array_equal(pixel_cells(inside, 1242, 375), [5, 300])
-    np.testing.assert_array_equal(pixel_cells(np.array([[107.0, 52], [108, 51], [1132, 52]]), 1242, 375), [-1, -1, -1])
+    np.testing.assert_array_equal(pixel_cells(np.array([[107.0, 28], [108, 27], [1132, 28]]), 1242, 375), [-1, -1, -1])
     assert len(grid_pixels(160, 96)) == 0  # a frame too small for the authors' crop has no pixel
 
 

@@ -64,7 +64,7 @@ LAYER_CODE = {
     "kpconv": (0, "afae9f47a5ac"),  # KPConv of CoFiI2P's official size (issue 39)
     "mlp": (0, "1e8fb86b56f9"),
     "nodes": (0, "57e284127b45"),
-    "peer_inputs": (2, "7e1c659e61b7"),  # a loader card's frame taken as it is (crop, T_init axes); issue 38 paths
+    "peer_inputs": (2, "48535a034fcc"),  # a loader card's frame taken as it is (crop, T_init axes); issue 38 paths
     "point_pyramid": (0, "89a7e54dc7c8"),  # CoFiI2P's KPConv pyramid (issue 39)
     "pointnet2": (1, "ee6c35457d80"),  # the torch FPS rounds as the compiled one (issue 39); seeded_cloud: same
     "point_voxel": (0, "6454dd9cb5d5"),

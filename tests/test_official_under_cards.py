@@ -189,6 +189,7 @@ def test_a_flat_grounds_normal_is_camera_up_under_the_card_as_on_the_dataset_fra
 # and 291 / 32, 85.5 / 32: cell 2 * 16 + 9 = 41, corner (684, 180) there and (288, 64) = (684 / 2 - 54, 130 / 2 - 1).
 SCENE_POINT = np.array([1.0, 0.5, 10.0])
 CELL_CHECKS = {  # size: (card K, the cell, its corner on the dataset frame, on the card's)
+    "corri2p": ([[350, 0, 256], [0, 350, 80], [0, 0, 1]], 3144, (684, 220), (288, 96)),  # the loader's: no row cut
     "vp2p-match": ([[350, 0, 256], [0, 350, 80], [0, 0, 1]], 3144, (684, 220), (288, 96)),
     "deepi2p": ([[350, 0, 256], [0, 350, 68], [0, 0, 1]], 41, (684, 180), (288, 64)),
 }
@@ -202,7 +203,7 @@ def cell_of(size: str, frame, conf) -> int:
     return int(CELLS[size](uv[None].astype(np.float32), width, height, crop)[0])
 
 
-@pytest.mark.parametrize("size", ["vp2p-match", "deepi2p"])
+@pytest.mark.parametrize("size", ["corri2p", "vp2p-match", "deepi2p"])
 def test_a_scene_point_falls_in_the_same_cell_at_the_same_ray_under_the_card_as_on_the_dataset_frame(size):
     card_K, cell, dataset_corner, card_corner = CELL_CHECKS[size]
     dataset, card = Protocol().apply(sensor()), card_frame(size)
@@ -215,10 +216,12 @@ def test_a_scene_point_falls_in_the_same_cell_at_the_same_ray_under_the_card_as_
     np.testing.assert_allclose(rays[0], rays[1], rtol=0, atol=1e-12)  # EPnP with the frame's K reads the same ray
 
 
-def test_corri2p_cuts_50_rows_of_the_dataset_frame_where_its_card_cuts_none():
-    """a kept difference: the official size's default path reads options.py's crop_original_top_rows, the card (as
-    the loader's code) cuts no row, so the scene point is 3 cells lower on the card: 24 vs (223 - 52) / 8 = 21.4."""
-    grid = component("extractor2d", "corri2p-official-grid")
+def test_corri2ps_top_rows_stays_a_conf_that_cuts_the_dataset_frame_only():
+    """`top_rows` = 50 (DeepI2P's cut, options.py's crop_original_top_rows) moves the dataset frame's cells 50 rows
+    down: the scene point's row is (223 - 52) / 8 = 21.4, three cells above its default 24; a card's frame is
+    already the crop, so the conf cuts nothing there."""
+    grid = component("extractor2d", "corri2p-official-grid", {"top_rows": 50})
+    assert grid.conf["top_rows"] == 50 and component("extractor2d", "corri2p-official-grid").conf["top_rows"] == 0
     assert cell_of("corri2p", Protocol().apply(sensor()), grid.conf) == 21 * 128 + 72
     assert cell_of("corri2p", card_frame("corri2p"), grid.conf) == 24 * 128 + 72
 

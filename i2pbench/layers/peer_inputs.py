@@ -2,8 +2,9 @@
 centre-cropped; the network's cells as full-resolution pixels; the scan as 0.1 m voxels with normals; seeded draws.
 
 Where the methods differ, the difference is a conf key or a named argument:
-- `crop["top_rows"]`: rows cut off the image's top before scaling (CorrI2P options.py `crop_original_top_rows`,
-  DeepI2P kitti/options.py: 50; VP2P-Match kitti_dataset.py:306-319 cuts none, its conf has no such key);
+- `crop["top_rows"]`: rows cut off the image's top before scaling (DeepI2P kitti_pc_img_pose_loader.py:330: 50;
+  CorrI2P's loader cuts none, options.py's `crop_original_top_rows` being read by no KITTI line, so its conf is 0;
+  VP2P-Match kitti_dataset.py:306-319 cuts none, its conf has no such key);
 - `cell_px`: the side of a cell in pixels of the crop (CorrI2P's and VP2P-Match's stride-4 map, DeepI2P's 32 px fine
   cells, kitti/options.py `img_fine_resolution_scale`);
 - `in_draw_order`: VP2P-Match keeps its random draw's order (kitti_dataset.py:296-303), CorrI2P and DeepI2P sort it;

@@ -17,8 +17,10 @@ What had to change for the code to run here, in this script only (docs/methods.m
 - the loader reads files made by scripts partly unreleased (img_P2, K_P2, pc_npy_with_normal): here the scan is
   voxelised at 0.1 m with open3d normals (radius 0.6, 30 neighbours, oriented to +z) and nearest-point intensity
   (kitti_script/kitti_pc_bin_to_npy_with_downsample_sn.py), moved into camera 2's frame, voxelised again at 0.1 m
-  (the loader), `--n` random points; the image (RGB) loses its top 50 rows (options.py `crop_original_top_rows`),
-  is halved (OpenCV linear) and centre-cropped to 160 x 512 (the loader's val mode), K likewise; its FarthestSampler
+  (the loader), `--n` random points; the image (RGB) is the whole image_2 PNG, as the corri2p-kitti layout's
+  `img_P2` (the loader cuts no rows: options.py's `crop_original_top_rows` is read only by
+  nuScenes_script/make_dataset.py:263), halved (OpenCV linear) and centre-cropped to 160 x 512
+  (kitti_pc_img_dataloader.py:274-287, its val mode), K likewise; its FarthestSampler
   (which uses `np.int`, removed in numpy 1.24) is written out here with the same arithmetic.
 """
 
@@ -42,7 +44,7 @@ from scipy.spatial import cKDTree
 
 from i2pbench.testing.recipe import recipe_value
 
-IMAGE_H, IMAGE_W, TOP_ROWS = 160, 512, 50
+IMAGE_H, IMAGE_W = 160, 512
 NUM_KPT, DIST_THRES, POS_MARGIN, NEG_MARGIN = 512, 1.0, 0.2, 1.8  # train.py defaults
 
 
@@ -150,9 +152,8 @@ def prepare(frame: Path, index: int, n: int, nodes: int) -> dict[str, np.ndarray
     points, intensity, normals = voxel(points, intensity, normals, 0.1)
     pick = np.random.choice(points.shape[1], n, replace=False)
     points, intensity, normals = points[:, pick], intensity[:, pick], normals[:, pick]
-    image = cv2.cvtColor(cv2.imread(str(frame / "image_2" / f"{index:06d}.png")), cv2.COLOR_BGR2RGB)[TOP_ROWS:]
+    image = cv2.cvtColor(cv2.imread(str(frame / "image_2" / f"{index:06d}.png")), cv2.COLOR_BGR2RGB)
     K = calib["P2"][:, :3].copy()
-    K[1, 2] -= TOP_ROWS
     image = cv2.resize(
         image, (round(image.shape[1] * 0.5), round(image.shape[0] * 0.5)), interpolation=cv2.INTER_LINEAR
     )

@@ -7,13 +7,16 @@ its branches, not per-keypoint descriptors, so it has no cut at i2pbench's encod
 official size runs no encoder or exchanger, and the matcher holds the network (network.py), its four parts under
 `encoder3d.`, `encoder2d.`, `exchange.` and `heads.`.
 
-Pixels (`corri2p-official-grid`): the authors' image is the frame's, top 50 rows cut, halved (OpenCV linear) and
-centre-cropped to 160 x 512 (options.py `crop_original_top_rows`, kitti_pc_img_dataloader.py:274-287); the network
-scores every cell of its stride-4 map, whose (x, y) the authors' PnP reads with K at 1/4 of the crop's
-(cal_error_all.py:44-48, 81-86). That cell is full-resolution pixel (8x + 2 dx, 8y + 2 dy + 50) under the frame's K
-(dx, dy: the crop's offsets in the half-size image), exactly: so EPnP on these pixels with the frame's K and 8 px is
-their EPnP on (x, y) with K/4 and 1 px. The crop (top rows, scale, size) is a conf of the grid and of the matcher,
-their defaults the authors'; a frame too small for it gets no pixel (the conformance kit scales it to its frame).
+Pixels (`corri2p-official-grid`): the authors' image is the frame's whole image, halved (OpenCV linear) and
+centre-cropped to 160 x 512 (kitti_pc_img_dataloader.py:271-287 reads `img_P2`, the whole image in the corri2p-kitti
+layout, and cuts no rows: options.py's `crop_original_top_rows` = 50 is read only by nuScenes_script/make_dataset.py);
+the network scores every cell of its stride-4 map, whose (x, y) the authors' PnP reads with K at 1/4 of the crop's
+(cal_error_all.py:44-48, 81-86). That cell is full-resolution pixel (8x + 2 dx, 8y + 2 dy) under the frame's K
+(dx, dy: the crop's offsets in the half-size image), exactly: so EPnP on these pixels with the frame's K at 8 px is
+their EPnP on (x, y) with K/4 at 1 px (the official solver, `solver.py`, scales their 1 px to the frame). The crop
+(`top_rows`, scale, size) is a conf of the grid and of the matcher, their defaults the loader's (`top_rows` 0; 50
+cuts as DeepI2P's loader does); a frame too small for it gets no pixel (the conformance kit scales it to its
+frame).
 
 Points (`corri2p-official-points`): the scan voxelised at 0.1 m with open3d normals (radius 0.6 m, 30 neighbours,
 oriented to +z) and the intensity of the nearest return (kitti_script/kitti_pc_bin_to_npy_with_downsample_sn.py),
@@ -24,7 +27,7 @@ point's `index` is its nearest return's row (matches name frame points); the net
 rotation about y that the authors train under.
 
 Under the `corri2p` card (and `vp2p-match`, whose inputs are the same) the frame already is the authors' loader's
-inputs: the grid's cells are the 160 x 512 image's own (8 px there is 4 px, 1 px at K/4 as theirs), the points are
+inputs: the grid's cells are the 160 x 512 image's own (their 1 px at K/4 is 4 px there), the points are
 the frame's 40,960 in their order, in camera axes already (no permutation), normals estimated on them (peer_inputs).
 """
 
@@ -67,9 +70,9 @@ from i2pbench.layers.peer_inputs import network_image as network_image  # the of
 from .network import IMAGE_SIZE, NODES, NUM_POINTS, CorrI2PNet
 
 STRIDE = 4  # the decoder's output stride
-# the authors' image preparation (options.py crop_original_top_rows, img_scale, img_W x img_H): a conf of the grid
-# and of the matcher, which must agree (the official size pins both to these)
-CROP: dict[str, Any] = {"top_rows": 50, "scale": 0.5, "crop": (IMAGE_SIZE[1], IMAGE_SIZE[0])}
+# the authors' loader's image preparation (no rows cut, kitti_pc_img_dataloader.py:271-287; options.py img_scale,
+# img_W x img_H): a conf of the grid and of the matcher, which must agree (the official size pins both to these)
+CROP: dict[str, Any] = {"top_rows": 0, "scale": 0.5, "crop": (IMAGE_SIZE[1], IMAGE_SIZE[0])}
 LOADER_CARDS = frozenset({"corri2p", "vp2p-match"})  # the cards whose frames are the authors' loader's inputs
 
 
